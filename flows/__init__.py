@@ -1,0 +1,1 @@
+"""Prefect flows: orchestration, caching, MLflow runs and artifacts on top of `pasta`."""

@@ -1,0 +1,237 @@
+"""Typed, frozen configuration models.
+
+Every model forbids unknown keys and is immutable once built. Values carry their
+units in their names where it matters (``dt_s``, ``yield_stress_pa``). The
+numbers of the appendix's Tables 1-3 live in ``conf/tasks/*.yaml``; profiles in
+``conf/profiles/*.yaml`` rescale them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+TASK_NAMES = ("LiftSpread", "GatherMove", "CutRearrange", "CRS", "CRS-Twice")
+PROFILE_NAMES = ("smoke", "small", "paper")
+TOOL_KINDS = ("box", "knife", "gripper", "rolling_pin")
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+
+
+class Frozen(BaseModel):
+    """Base: unknown keys are refused and instances are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class MaterialConfig(Frozen):
+    """Dough material (appendix Table 2)."""
+
+    youngs_modulus_pa: float = Field(gt=0)
+    poisson_ratio: float = Field(ge=0, lt=0.5)
+    yield_stress_pa: float = Field(gt=0)
+    ground_friction: float = Field(ge=0)
+    density: float = Field(default=1.0, gt=0)
+
+
+class SimConfig(Frozen):
+    """MLS-MPM discretisation.
+
+    ``gravity_m_s2`` is the effective acceleration in unit-cube lengths per s^2.
+    The official code multiplied its configured gravity by a hidden factor of
+    30 (-20 became -600); here the effective value is written out.
+    """
+
+    n_grid: int = Field(ge=8, le=256)
+    dt_s: float = Field(gt=0, le=1e-3)
+    substeps_per_step: int = Field(ge=1, le=200)
+    n_particles: int = Field(ge=16, le=200_000)
+    gravity_m_s2: Vec3
+    boundary_cells: int = Field(default=3, ge=1, le=8)
+    particle_lower_bound_cells: int = Field(default=0, ge=0, le=8)
+    contact_softness: float = Field(default=0.0, ge=0)
+    optimisation_contact_softness: float = Field(default=666.0, ge=0)
+    arch: Literal["cpu", "cuda", "auto"] = "cpu"
+    steps_per_skill: int = Field(default=50, ge=1)
+    settle_steps: int = Field(default=10, ge=0)
+    observation_points: int = Field(default=1000, ge=1)
+    tool_points: int = Field(default=100, ge=1)
+
+    @model_validator(mode="after")
+    def _check_observation_points(self) -> SimConfig:
+        if self.observation_points > self.n_particles:
+            raise ValueError(
+                f"observation_points ({self.observation_points}) must be <= n_particles ({self.n_particles})"
+            )
+        return self
+
+
+class ToolConfig(Frozen):
+    """A rigid tool: an SDF primitive with a pose and an action space.
+
+    Geometry by ``kind``:
+      * ``box``: ``half_extents`` (spatula, pusher, static board).
+      * ``knife``: ``half_extents`` = (half thickness, top above origin, half width in z),
+        ``blade_depth`` = how far the V edge reaches below the origin, ``blade_angle_deg``.
+      * ``gripper``: ``half_extents`` of one finger; ``gap``, ``min_gap``, ``max_gap``.
+      * ``rolling_pin``: ``radius`` and ``half_length`` of a capsule along its local z.
+    ``action_scales`` has one entry per action dimension of the tool (box 6, knife 3,
+    gripper 7, rolling_pin 6); actions in [-1, 1] times scale give the per-step motion.
+    ``rotation`` is a unit quaternion, w first. ``collides_with`` names the tools this one may not
+    pass through (tool-tool collision projection, e.g. spatula vs. cutting board).
+    """
+
+    name: str
+    kind: Literal["box", "knife", "gripper", "rolling_pin"]
+    position: Vec3
+    rotation: Quat = (1.0, 0.0, 0.0, 0.0)
+    half_extents: Vec3 = (0.0, 0.0, 0.0)
+    radius: float = Field(default=0.0, ge=0)
+    half_length: float = Field(default=0.0, ge=0)
+    blade_depth: float = Field(default=0.0, ge=0)
+    blade_angle_deg: float = Field(default=60.0, gt=0, lt=180)
+    gap: float = Field(default=0.0, ge=0)
+    min_gap: float = Field(default=0.0, ge=0)
+    max_gap: float = Field(default=1.0, ge=0)
+    action_scales: tuple[float, ...] = ()
+    friction: float = Field(default=0.0, ge=0)
+    lower_bound: Vec3 = (0.0, 0.0, 0.0)
+    upper_bound: Vec3 = (1.0, 1.0, 1.0)
+    static: bool = False
+    collides_with: tuple[str, ...] = ()
+
+    @model_validator(mode="after")
+    def _check_geometry(self) -> ToolConfig:
+        norm = math.sqrt(sum(c * c for c in self.rotation))
+        if abs(norm - 1.0) > 1e-3:
+            raise ValueError(
+                f"tool {self.name!r}: rotation {self.rotation} is not a unit quaternion (norm {norm:.4f})"
+            )
+        if any(lo > hi for lo, hi in zip(self.lower_bound, self.upper_bound, strict=True)):
+            raise ValueError(
+                f"tool {self.name!r}: lower_bound {self.lower_bound} exceeds upper_bound {self.upper_bound}"
+            )
+        if self.kind == "gripper" and not self.min_gap <= self.gap <= self.max_gap:
+            raise ValueError(
+                f"tool {self.name!r}: gripper gap must satisfy min_gap <= gap <= max_gap, "
+                f"got {self.min_gap} <= {self.gap} <= {self.max_gap}"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _check_action_dims(self) -> ToolConfig:
+        expected = {"box": 6, "knife": 3, "gripper": 7, "rolling_pin": 6}[self.kind]
+        if self.static:
+            if any(self.action_scales):
+                raise ValueError(f"tool {self.name!r} is static but has action_scales {self.action_scales}")
+        elif len(self.action_scales) != expected:
+            raise ValueError(
+                f"tool {self.name!r} of kind {self.kind!r} needs {expected} action_scales, "
+                f"got {len(self.action_scales)}: {self.action_scales}"
+            )
+        return self
+
+
+class SkillConfig(Frozen):
+    """A skill: the tool it uses and how many entities it takes and gives."""
+
+    name: str
+    tool: str
+    entities_in: int = Field(ge=1)
+    entities_out: int = Field(ge=1)
+
+
+class DataConfig(Frozen):
+    """Dataset sizes (appendix Table 1) at the profile's scale."""
+
+    n_initial_configs: int = Field(ge=1)
+    n_target_configs: int = Field(ge=1)
+    n_train_trajectories: int = Field(ge=1)
+    n_test_trajectories: int = Field(ge=1)
+    n_eval_configs: int = Field(default=5, ge=1)
+    gbto_iterations: int = Field(ge=0)
+    gbto_lr: float = Field(gt=0)
+    gbto_velocity_weight: float = Field(ge=0)
+    dbscan_eps: float = Field(default=0.03, gt=0)
+    dbscan_min_samples: int = Field(default=6, ge=1)
+    dbscan_min_points: int = Field(default=10, ge=0)
+
+
+class TrainConfig(Frozen):
+    """Training values (appendix Table 3 and section 1.5)."""
+
+    vae_lr: float = Field(gt=0)
+    latent_dim: int = Field(ge=1)
+    feasibility_lr: float = Field(gt=0)
+    feasibility_batch_size: int = Field(ge=1)
+    feasibility_sigma_z: float = Field(ge=0)
+    feasibility_sigma_t: float = Field(ge=0)
+    cost_lr: float = Field(gt=0)
+    cost_batch_size: int = Field(ge=1)
+    policy_lr: float = Field(gt=0)
+    policy_batch_size: int = Field(ge=1)
+    policy_point_noise: float = Field(ge=0)
+    lambda_policy: float = Field(default=1.0, ge=0)
+    lambda_feasibility: float = Field(default=10.0, ge=0)
+    lambda_cost: float = Field(default=1.0, ge=0)
+    vae_epochs: int = Field(ge=1)
+    epochs: int = Field(ge=1)
+
+
+class PlanConfig(Frozen):
+    """Planning values (appendix Table 3)."""
+
+    lr: float = Field(gt=0)
+    iterations: int = Field(ge=1)
+    samples: int = Field(ge=1)
+    receding_horizon: int | None = Field(default=None, ge=1)
+
+
+class EvalConfig(Frozen):
+    """Evaluation values."""
+
+    success_threshold: float = Field(gt=0, lt=1)
+    seeds: tuple[int, ...] = (0, 1, 2)
+
+
+class TaskConfig(Frozen):
+    """One task at one profile: everything a run needs, logged whole to MLflow."""
+
+    task: Literal["LiftSpread", "GatherMove", "CutRearrange", "CRS", "CRS-Twice"]
+    profile: Literal["smoke", "small", "paper"]
+    horizon: int = Field(ge=1)
+    distractors: int = Field(default=0, ge=0, le=8)
+    material: MaterialConfig
+    sim: SimConfig
+    tools: tuple[ToolConfig, ...]
+    skills: tuple[SkillConfig, ...]
+    data: DataConfig
+    train: TrainConfig
+    plan: PlanConfig
+    eval: EvalConfig
+
+    @model_validator(mode="after")
+    def _check_references(self) -> TaskConfig:
+        tool_names = [t.name for t in self.tools]
+        if len(set(tool_names)) != len(tool_names):
+            raise ValueError(f"tool names must be unique, got {tool_names}")
+        static = {t.name for t in self.tools if t.static}
+        for skill in self.skills:
+            if skill.tool not in tool_names:
+                raise ValueError(f"skill {skill.name!r} names tool {skill.tool!r}; tools are {tool_names}")
+            if skill.tool in static:
+                raise ValueError(f"skill {skill.name!r} uses static tool {skill.tool!r}; it cannot move")
+        for tool in self.tools:
+            for other in tool.collides_with:
+                if other not in tool_names or other == tool.name:
+                    raise ValueError(
+                        f"tool {tool.name!r} collides_with {other!r}; must be another tool of {tool_names}"
+                    )
+        if self.plan.receding_horizon is not None and self.plan.receding_horizon > self.horizon:
+            raise ValueError(
+                f"plan.receding_horizon ({self.plan.receding_horizon}) must be <= horizon ({self.horizon})"
+            )
+        return self

@@ -1,0 +1,60 @@
+"""Where files go.
+
+* ``PASTA_HOME`` (default ``<repo root>/.pasta_home``): datasets and checkpoints.
+* ``MLFLOW_TRACKING_URI`` (default ``sqlite:///<repo root>/mlflow.db``, absolute): run tracking.
+* ``<repo root>/reports``: generated tables and figures.
+
+The repo root is the parent of the ``pasta`` package directory. Directories are created on demand.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+def _mkdir(path: Path) -> Path:
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _component(value: str, what: str) -> str:
+    """Refuse names that would escape their parent directory."""
+    if not value or value in {".", ".."} or "/" in value or "\\" in value:
+        raise ValueError(f"invalid {what} {value!r}: must be a plain name without path separators")
+    return value
+
+
+def pasta_home() -> Path:
+    """Root for data and checkpoints: ``$PASTA_HOME`` or ``<repo root>/.pasta_home``."""
+    env = os.environ.get("PASTA_HOME")
+    home = Path(env).expanduser().resolve() if env else REPO_ROOT / ".pasta_home"
+    return _mkdir(home)
+
+
+def tracking_uri() -> str:
+    """MLflow tracking URI: ``$MLFLOW_TRACKING_URI`` or an absolute sqlite URI in the repo root."""
+    env = os.environ.get("MLFLOW_TRACKING_URI")
+    if env:
+        return env
+    return f"sqlite:///{(REPO_ROOT / 'mlflow.db').as_posix()}"
+
+
+def data_dir(task: str, profile: str) -> Path:
+    """Datasets of one task at one profile: ``$PASTA_HOME/data/<task>/<profile>``."""
+    return _mkdir(pasta_home() / "data" / _component(task, "task") / _component(profile, "profile"))
+
+
+def checkpoint_dir(task: str, profile: str, run_name: str | None = None) -> Path:
+    """Model checkpoints: ``$PASTA_HOME/checkpoints/<task>/<profile>[/<run_name>]``."""
+    path = pasta_home() / "checkpoints" / _component(task, "task") / _component(profile, "profile")
+    if run_name is not None:
+        path = path / _component(run_name, "run name")
+    return _mkdir(path)
+
+
+def reports_dir() -> Path:
+    """Generated reports (markdown tables and PNG figures): ``<repo root>/reports``."""
+    return _mkdir(REPO_ROOT / "reports")
