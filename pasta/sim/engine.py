@@ -1,0 +1,708 @@
+"""Differentiable MLS-MPM dough simulator with rigid SDF tools (Taichi).
+
+Physics (env_spec.md section 1): APIC transfers with quadratic B-splines on a
+regular grid over the unit cube (y up); fixed-corotated elasticity; von Mises
+plasticity on Hencky strain with radial return; Coulomb friction on the ground;
+free-slip walls; rigid tools coupled on grid nodes through their SDF with
+Coulomb friction and optional soft contact.
+
+Layout. The simulator holds one environment step: ``substeps + 1`` frames of
+particle state ``x, v, C, F`` and tool poses. ``step`` runs the substeps and
+moves the last frame back to frame 0. Reverse mode recomputes one environment
+step from its checkpoint and runs the Taichi adjoint kernels substep by
+substep, so memory does not grow with the episode length (see
+``pasta.sim.autodiff``).
+
+Compile-time values: grid size, particle count, dt and the kinds of tools.
+Runtime values (no recompile): material, gravity, ground friction, contact
+softness and every tool size, friction and action scale.
+"""
+
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import taichi as ti
+
+from pasta.config.schema import MaterialConfig, SimConfig, ToolConfig
+from pasta.sim.quaternion import axis_angle_to_quat, quat_mul, quat_normalised, quat_to_matrix
+from pasta.sim.runtime import ensure_taichi
+from pasta.sim.tool_geometry import box_sdf, capsule_sdf, knife_sdf
+
+ACTION_DIMS = {"box": 6, "knife": 3, "gripper": 7, "rolling_pin": 6}
+SINGULAR_VALUE_FLOOR = 0.05
+SVD_GAP_FLOOR = 1e-6
+MAX_SPEED = 1e3
+# Soft contact acts where exp(-softness * sdf) exceeds this; the official 0.1 cut-off makes the
+# contact force jump, which finite differences see and adjoints do not.
+SOFT_CONTACT_CUTOFF = 1e-3
+
+
+@ti.func
+def bspline_weight(fx, i):
+    """Quadratic B-spline weight of stencil node i (0, 1, 2) for fractional grid position fx in [0.5, 1.5)."""
+    return ti.select(i == 0, 0.5 * (1.5 - fx) ** 2, ti.select(i == 1, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2))
+
+
+class SimulationError(RuntimeError):
+    """The simulation produced NaN or runaway values."""
+
+
+class ActionError(ValueError):
+    """An action is NaN, out of [-1, 1] or of the wrong size."""
+
+
+@dataclass(frozen=True)
+class SimLayout:
+    """The compile-time shape of a simulator: what a compiled kernel depends on."""
+
+    n_grid: int
+    n_particles: int
+    dt_s: float
+    substeps: int
+    tool_kinds: tuple[str, ...]
+    differentiable: bool
+
+
+@ti.data_oriented
+class MPMSimulator:
+    """MLS-MPM simulator for one dough and a fixed set of tools.
+
+    Args:
+        layout: grid size, particle count, dt, substeps per step, tool kinds.
+        lower_bound_cells: particles are clamped to ``[max(1, lower) * dx, 1 - 3 dx]``.
+        boundary_cells: thickness of the wall band in grid cells.
+    """
+
+    def __init__(self, layout: SimLayout, lower_bound_cells: int = 0, boundary_cells: int = 3):
+        ensure_taichi()
+        self.layout = layout
+        self.n = layout.n_particles
+        self.n_grid = layout.n_grid
+        self.dx = 1.0 / layout.n_grid
+        self.inv_dx = float(layout.n_grid)
+        self.dt = layout.dt_s
+        self.substeps = layout.substeps
+        self.n_frames = layout.substeps + 1
+        self.tool_kinds = layout.tool_kinds
+        self.n_tools = len(layout.tool_kinds)
+        self.differentiable = layout.differentiable
+        self.boundary_cells = boundary_cells
+        self.p_vol = (0.5 * self.dx) ** 2
+        self.x_low = max(1, lower_bound_cells) * self.dx
+        self.x_high = 1.0 - 3.0 * self.dx
+
+        offsets, total = [], 0
+        for kind in self.tool_kinds:
+            offsets.append(total)
+            total += ACTION_DIMS[kind]
+        self.action_offsets = tuple(offsets)
+        self.action_dim = total
+
+        grad = self.differentiable
+        frames, n, g = self.n_frames, self.n, self.n_grid
+        n_tools = max(self.n_tools, 1)
+        self.x = ti.Vector.field(3, ti.f32, shape=(frames, n), needs_grad=grad)
+        self.v = ti.Vector.field(3, ti.f32, shape=(frames, n), needs_grad=grad)
+        self.C = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
+        self.F = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
+        self.F_trial = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
+        self.U = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
+        self.sig = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
+        self.V = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
+        self.grid_m = ti.field(ti.f32, shape=(g, g, g), needs_grad=grad)
+        self.grid_v_in = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
+        self.grid_v_out = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
+
+        self.tool_pos = ti.Vector.field(3, ti.f32, shape=(frames, n_tools), needs_grad=grad)
+        self.tool_rot = ti.Vector.field(4, ti.f32, shape=(frames, n_tools), needs_grad=grad)
+        self.tool_gap = ti.field(ti.f32, shape=(frames, n_tools), needs_grad=grad)
+        self.action = ti.field(ti.f32, shape=max(self.action_dim, 1), needs_grad=grad)
+
+        # Runtime parameters: changing them needs no recompile.
+        self.mu = ti.field(ti.f32, shape=())
+        self.lam = ti.field(ti.f32, shape=())
+        self.yield_stress = ti.field(ti.f32, shape=())
+        self.density = ti.field(ti.f32, shape=())
+        self.ground_friction = ti.field(ti.f32, shape=())
+        self.gravity = ti.Vector.field(3, ti.f32, shape=())
+        self.softness = ti.field(ti.f32, shape=())
+        self.tool_half = ti.Vector.field(3, ti.f32, shape=n_tools)
+        self.tool_radius = ti.field(ti.f32, shape=n_tools)
+        self.tool_half_length = ti.field(ti.f32, shape=n_tools)
+        self.tool_blade_depth = ti.field(ti.f32, shape=n_tools)
+        self.tool_blade_slope = ti.field(ti.f32, shape=n_tools)
+        self.tool_min_gap = ti.field(ti.f32, shape=n_tools)
+        self.tool_max_gap = ti.field(ti.f32, shape=n_tools)
+        self.tool_friction = ti.field(ti.f32, shape=n_tools)
+        self.tool_lower = ti.Vector.field(3, ti.f32, shape=n_tools)
+        self.tool_upper = ti.Vector.field(3, ti.f32, shape=n_tools)
+        self.tool_active = ti.field(ti.f32, shape=n_tools)
+        self.action_scale = ti.field(ti.f32, shape=max(self.action_dim, 1))
+        self.health = ti.field(ti.f32, shape=2)  # [non-finite count, max speed]
+
+    # ------------------------------------------------------------------ setup
+    def set_material(self, material: MaterialConfig) -> None:
+        """Set E, nu, yield stress, density and ground friction (Table 2)."""
+        e, nu = material.youngs_modulus_pa, material.poisson_ratio
+        self.mu[None] = e / (2 * (1 + nu))
+        self.lam[None] = e * nu / ((1 + nu) * (1 - 2 * nu))
+        self.yield_stress[None] = material.yield_stress_pa
+        self.density[None] = material.density
+        self.ground_friction[None] = material.ground_friction
+
+    def set_gravity(self, gravity: Sequence[float]) -> None:
+        """Effective gravitational acceleration, unit-cube lengths per s^2."""
+        self.gravity[None] = [float(g) for g in gravity]
+
+    def set_softness(self, softness: float) -> None:
+        """Contact softness: 0 is hard contact (sdf <= 0); > 0 reaches out to sdf < ln(10)/softness."""
+        if softness < 0:
+            raise ValueError(f"contact softness must be >= 0, got {softness}")
+        self.softness[None] = softness
+
+    def set_tools(self, tools: Sequence[ToolConfig]) -> None:
+        """Set every tool's geometry, friction, bounds and action scales (runtime values)."""
+        kinds = tuple(t.kind for t in tools)
+        if kinds != self.tool_kinds:
+            raise ValueError(f"tool kinds {kinds} do not match the compiled layout {self.tool_kinds}")
+        scales = np.zeros(max(self.action_dim, 1), dtype=np.float32)
+        for k, tool in enumerate(tools):
+            self.tool_half[k] = tool.half_extents
+            self.tool_radius[k] = tool.radius
+            self.tool_half_length[k] = tool.half_length
+            self.tool_blade_depth[k] = tool.blade_depth
+            self.tool_blade_slope[k] = 1.0 / math.tan(math.radians(tool.blade_angle_deg) / 2)
+            self.tool_min_gap[k] = tool.min_gap
+            self.tool_max_gap[k] = tool.max_gap
+            self.tool_friction[k] = tool.friction
+            self.tool_lower[k] = tool.lower_bound
+            self.tool_upper[k] = tool.upper_bound
+            self.tool_active[k] = 0.0 if tool.static else 1.0
+            if not tool.static:
+                start = self.action_offsets[k]
+                scales[start : start + ACTION_DIMS[tool.kind]] = tool.action_scales
+        self.action_scale.from_numpy(scales)
+
+    # ------------------------------------------------------------- constitutive
+    @ti.func
+    def constitutive(self, U, sig, V):
+        """Return mapping and Kirchhoff stress from the SVD of the trial F.
+
+        Returns the post-plastic F (3, 3) and the Kirchhoff stress (3, 3).
+        """
+        mu = self.mu[None]
+        lam = self.lam[None]
+        s = ti.Vector([sig[0, 0], sig[1, 1], sig[2, 2]])
+        s = ti.max(s, SINGULAR_VALUE_FLOOR)
+        eps = ti.log(s)
+        eps_dev = eps - eps.sum() / 3.0
+        dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + 1e-8)
+        excess = ti.max(dev_norm - self.yield_stress[None] / (2.0 * mu), 0.0)
+        eps = eps - (excess / dev_norm) * eps_dev
+        s_new = ti.exp(eps)
+        sig_new = ti.Matrix([[s_new[0], 0.0, 0.0], [0.0, s_new[1], 0.0], [0.0, 0.0, s_new[2]]])
+        F_new = U @ sig_new @ V.transpose()
+        R = U @ V.transpose()
+        J = s_new[0] * s_new[1] * s_new[2]
+        stress = 2.0 * mu * (F_new - R) @ F_new.transpose() + ti.Matrix.identity(ti.f32, 3) * (
+            lam * J * (J - 1.0)
+        )
+        return F_new, stress
+
+    # ------------------------------------------------------------------ kernels
+    @ti.kernel
+    def clear_grid(self):
+        for I in ti.grouped(self.grid_m):
+            self.grid_m[I] = 0.0
+            self.grid_v_in[I] = ti.Vector.zero(ti.f32, 3)
+            self.grid_v_out[I] = ti.Vector.zero(ti.f32, 3)
+            if ti.static(self.differentiable):
+                self.grid_m.grad[I] = 0.0
+                self.grid_v_in.grad[I] = ti.Vector.zero(ti.f32, 3)
+                self.grid_v_out.grad[I] = ti.Vector.zero(ti.f32, 3)
+
+    @ti.kernel
+    def clear_particle_temporaries_grad(self):
+        for p in range(self.n):
+            self.F_trial.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
+            self.U.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
+            self.sig.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
+            self.V.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
+
+    @ti.kernel
+    def compute_trial_F(self, f: ti.i32):
+        for p in range(self.n):
+            self.F_trial[p] = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
+
+    @ti.kernel
+    def svd(self):
+        for p in range(self.n):
+            self.U[p], self.sig[p], self.V[p] = ti.svd(self.F_trial[p], ti.f32)
+
+    @ti.kernel
+    def svd_grad(self):
+        """Adjoint of ``svd``: F_trial.grad from U.grad, sig.grad and V.grad.
+
+        Uses the closed form for the SVD's derivative, with the gaps between
+        squared singular values kept at least ``SVD_GAP_FLOOR`` away from zero.
+        """
+        for p in range(self.n):
+            U, S, V = self.U[p], self.sig[p], self.V[p]
+            gU, gS, gV = self.U.grad[p], self.sig.grad[p], self.V.grad[p]
+            sq = ti.Vector([S[0, 0] ** 2, S[1, 1] ** 2, S[2, 2] ** 2])
+            K = ti.Matrix.zero(ti.f32, 3, 3)
+            for i, j in ti.static(ti.ndrange(3, 3)):
+                if ti.static(i != j):
+                    gap = sq[j] - sq[i]
+                    gap = ti.select(gap >= 0.0, ti.max(gap, SVD_GAP_FLOOR), ti.min(gap, -SVD_GAP_FLOOR))
+                    K[i, j] = 1.0 / gap
+            gS_diag = ti.Matrix([[gS[0, 0], 0.0, 0.0], [0.0, gS[1, 1], 0.0], [0.0, 0.0, gS[2, 2]]])
+            Ut, Vt = U.transpose(), V.transpose()
+            u_skew = Ut @ gU - gU.transpose() @ U
+            v_skew = Vt @ gV - gV.transpose() @ V
+            u_part = U @ ((K * u_skew) @ S) @ Vt
+            v_part = U @ (S @ (K * v_skew)) @ Vt
+            self.F_trial.grad[p] += U @ gS_diag @ Vt + u_part + v_part
+
+    @ti.kernel
+    def p2g(self, f: ti.i32):
+        for p in range(self.n):
+            Xp = self.x[f, p] * self.inv_dx
+            base = ti.cast(Xp - 0.5, ti.i32)
+            fx = Xp - ti.cast(base, ti.f32)
+            F_new, stress = self.constitutive(self.U[p], self.sig[p], self.V[p])
+            self.F[f + 1, p] = F_new
+            p_mass = self.p_vol * self.density[None]
+            affine = (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + p_mass * self.C[f, p]
+            momentum = p_mass * self.v[f, p]
+            for i, j, k in ti.ndrange(3, 3, 3):
+                offset = ti.Vector([i, j, k])
+                dpos = (ti.cast(offset, ti.f32) - fx) * self.dx
+                weight = bspline_weight(fx[0], i) * bspline_weight(fx[1], j) * bspline_weight(fx[2], k)
+                self.grid_v_in[base + offset] += weight * (momentum + affine @ dpos)
+                self.grid_m[base + offset] += weight * p_mass
+
+    @ti.kernel
+    def tool_kinematics(self, f: ti.i32):
+        """Advance every tool's pose from frame f to f + 1 under the current action."""
+        for _ in range(1):
+            for k in ti.static(range(self.n_tools)):
+                self.advance_tool(f, k)
+
+    @ti.func
+    def advance_tool(self, f, k: ti.template()):
+        a0 = ti.static(self.action_offsets[k])
+        inv_sub = 1.0 / self.substeps
+        pos = self.tool_pos[f, k]
+        rot = self.tool_rot[f, k]
+        gap = self.tool_gap[f, k]
+        active = self.tool_active[k]
+        if ti.static(self.tool_kinds[k] == "knife"):
+            pos += active * inv_sub * ti.Vector([self.scaled(a0 + d) for d in ti.static(range(3))])
+        elif ti.static(self.tool_kinds[k] == "box"):
+            pos += active * inv_sub * ti.Vector([self.scaled(a0 + d) for d in ti.static(range(3))])
+            w = active * inv_sub * ti.Vector([self.scaled(a0 + 3 + d) for d in ti.static(range(3))])
+            rot = quat_normalised(quat_mul(axis_angle_to_quat(w), rot))
+        elif ti.static(self.tool_kinds[k] == "gripper"):
+            pos += active * inv_sub * ti.Vector([self.scaled(a0 + d) for d in ti.static(range(3))])
+            w = active * inv_sub * ti.Vector([self.scaled(a0 + 3 + d) for d in ti.static(range(3))])
+            rot = quat_normalised(quat_mul(rot, axis_angle_to_quat(w)))
+            gap = ti.min(ti.max(gap - active * inv_sub * self.scaled(a0 + 6), self.tool_min_gap[k]),
+                         self.tool_max_gap[k])
+        elif ti.static(self.tool_kinds[k] == "rolling_pin"):
+            roll = active * inv_sub * self.scaled(a0)
+            yaw = active * inv_sub * self.scaled(a0 + 1)
+            lift = active * inv_sub * self.scaled(a0 + 2)
+            slide = active * inv_sub * self.scaled(a0 + 3)
+            axis = quat_to_matrix(rot) @ ti.Vector([0.0, 0.0, 1.0])
+            direction = ti.Vector([0.0, 1.0, 0.0]).cross(axis)
+            pos += direction * (roll * self.tool_radius[k] + slide) + ti.Vector([0.0, lift, 0.0])
+            rot = quat_mul(axis_angle_to_quat(ti.Vector([0.0, -yaw, 0.0])), rot)
+            rot = quat_normalised(quat_mul(rot, axis_angle_to_quat(ti.Vector([0.0, 0.0, roll]))))
+        pos = ti.min(ti.max(pos, self.tool_lower[k]), self.tool_upper[k])
+        self.tool_pos[f + 1, k] = pos
+        self.tool_rot[f + 1, k] = rot
+        self.tool_gap[f + 1, k] = gap
+
+    @ti.func
+    def scaled(self, i: ti.template()):
+        return ti.min(ti.max(self.action[i], -1.0), 1.0) * self.action_scale[i]
+
+    @ti.func
+    def local_sdf(self, k: ti.template(), finger: ti.template(), p, gap):
+        """SDF of tool k (finger 0/1 for a gripper) at local point p."""
+        d = 0.0
+        if ti.static(self.tool_kinds[k] == "box"):
+            d = box_sdf(p, self.tool_half[k])
+        elif ti.static(self.tool_kinds[k] == "knife"):
+            d = knife_sdf(p, self.tool_half[k], self.tool_blade_depth[k], self.tool_blade_slope[k])
+        elif ti.static(self.tool_kinds[k] == "rolling_pin"):
+            d = capsule_sdf(p, self.tool_radius[k], self.tool_half_length[k])
+        elif ti.static(self.tool_kinds[k] == "gripper"):
+            sign = ti.static(1.0 if finger == 0 else -1.0)
+            d = box_sdf(p - ti.Vector([sign * 0.5 * gap, 0.0, 0.0]), self.tool_half[k])
+        return d
+
+    @ti.func
+    def collide(self, f, k: ti.template(), finger: ti.template(), node, v):
+        """Project the grid velocity ``v`` at world point ``node`` against tool k."""
+        R0 = quat_to_matrix(self.tool_rot[f, k])
+        local = R0.transpose() @ (node - self.tool_pos[f, k])
+        gap0 = self.tool_gap[f, k]
+        sdf = self.local_sdf(k, finger, local, gap0)
+        softness = self.softness[None]
+        influence = ti.min(ti.exp(-sdf * softness), 1.0)
+        in_contact = sdf <= 0.0 or (softness > 0.0 and influence > SOFT_CONTACT_CUTOFF)
+        h = 1e-4
+        grad_local = ti.Vector.zero(ti.f32, 3)
+        for d in ti.static(range(3)):
+            e = ti.Vector.unit(3, d, ti.f32) * h
+            grad_local[d] = (self.local_sdf(k, finger, local + e, gap0)
+                             - self.local_sdf(k, finger, local - e, gap0)) / (2 * h)
+        normal = R0 @ grad_local
+        normal = normal / ti.sqrt(normal.dot(normal) + 1e-12)
+        # Rigid velocity of the tool's material point at this node, including the gap motion.
+        finger_shift0 = ti.Vector.zero(ti.f32, 3)
+        finger_shift1 = ti.Vector.zero(ti.f32, 3)
+        if ti.static(self.tool_kinds[k] == "gripper"):
+            sign = ti.static(1.0 if finger == 0 else -1.0)
+            finger_shift0 = ti.Vector([sign * 0.5 * gap0, 0.0, 0.0])
+            finger_shift1 = ti.Vector([sign * 0.5 * self.tool_gap[f + 1, k], 0.0, 0.0])
+        R1 = quat_to_matrix(self.tool_rot[f + 1, k])
+        moved = self.tool_pos[f + 1, k] + R1 @ (local - finger_shift0 + finger_shift1)
+        v_tool = (moved - node) / self.dt
+        rel = v - v_tool
+        normal_speed = rel.dot(normal)
+        tangential = rel - ti.min(normal_speed, 0.0) * normal
+        t_norm = ti.sqrt(tangential.dot(tangential) + 1e-20)
+        with_friction = tangential / t_norm * ti.max(0.0, t_norm + normal_speed * self.tool_friction[k])
+        tangential = ti.select(normal_speed < 0.0, with_friction, tangential)
+        projected = v_tool + rel * (1.0 - influence) + tangential * influence
+        result = ti.select(in_contact, projected, v)
+        return result
+
+    @ti.kernel
+    def grid_op(self, f: ti.i32):
+        for I in ti.grouped(self.grid_m):
+            m = self.grid_m[I]
+            if m > 1e-12:
+                v = self.grid_v_in[I] / m + self.dt * self.gravity[None]
+                node = ti.cast(I, ti.f32) * self.dx
+                for k in ti.static(range(self.n_tools)):
+                    v = self.collide(f, k, 0, node, v)
+                    if ti.static(self.tool_kinds[k] == "gripper"):
+                        v = self.collide(f, k, 1, node, v)
+                bound = self.boundary_cells
+                mu_g = self.ground_friction[None]
+                t_norm = ti.sqrt(v[0] * v[0] + v[2] * v[2] + 1e-20)
+                scale = ti.select(mu_g >= 10.0, 0.0, ti.max(1.0 + mu_g * v[1] / t_norm, 0.0))
+                on_ground = I[1] < bound and v[1] < 0.0
+                v = ti.select(on_ground, ti.Vector([v[0] * scale, 0.0, v[2] * scale]), v)
+                for d in ti.static(range(3)):
+                    outward_low = I[d] < bound and v[d] < 0.0
+                    outward_high = I[d] > self.n_grid - bound and v[d] > 0.0
+                    v[d] = ti.select(outward_low or outward_high, 0.0, v[d])
+                self.grid_v_out[I] = v
+
+    @ti.kernel
+    def g2p(self, f: ti.i32):
+        for p in range(self.n):
+            Xp = self.x[f, p] * self.inv_dx
+            base = ti.cast(Xp - 0.5, ti.i32)
+            fx = Xp - ti.cast(base, ti.f32)
+            new_v = ti.Vector.zero(ti.f32, 3)
+            new_C = ti.Matrix.zero(ti.f32, 3, 3)
+            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+                offset = ti.Vector([i, j, k])
+                dpos = ti.cast(offset, ti.f32) - fx
+                g_v = self.grid_v_out[base + offset]
+                weight = bspline_weight(fx[0], i) * bspline_weight(fx[1], j) * bspline_weight(fx[2], k)
+                new_v += weight * g_v
+                new_C += (4.0 * self.inv_dx * weight) * g_v.outer_product(dpos)
+            self.v[f + 1, p] = new_v
+            self.C[f + 1, p] = new_C
+            self.x[f + 1, p] = ti.min(ti.max(self.x[f, p] + self.dt * new_v, self.x_low), self.x_high)
+
+    @ti.kernel
+    def copy_frame(self, src: ti.i32, dst: ti.i32):
+        for p in range(self.n):
+            self.x[dst, p] = self.x[src, p]
+            self.v[dst, p] = self.v[src, p]
+            self.C[dst, p] = self.C[src, p]
+            self.F[dst, p] = self.F[src, p]
+        for k in range(self.n_tools):
+            self.tool_pos[dst, k] = self.tool_pos[src, k]
+            self.tool_rot[dst, k] = self.tool_rot[src, k]
+            self.tool_gap[dst, k] = self.tool_gap[src, k]
+
+    @ti.kernel
+    def measure_health(self, f: ti.i32):
+        """health[0]: sum of |x|, |v|, |F| (non-finite if any value is); health[1]: max speed."""
+        self.health[0] = 0.0
+        self.health[1] = 0.0
+        for p in range(self.n):
+            speed2 = self.v[f, p].dot(self.v[f, p])
+            ti.atomic_add(self.health[0], ti.abs(self.x[f, p]).sum() + speed2 + ti.abs(self.F[f, p]).sum())
+            ti.atomic_max(self.health[1], ti.sqrt(speed2))
+
+    # ------------------------------------------------------------ state in/out
+    @ti.kernel
+    def _write_frame(self, f: ti.i32, x: ti.types.ndarray(), v: ti.types.ndarray(), C: ti.types.ndarray(),
+                     F: ti.types.ndarray()):
+        for p in range(self.n):
+            for a in ti.static(range(3)):
+                self.x[f, p][a] = x[p, a]
+                self.v[f, p][a] = v[p, a]
+                for b in ti.static(range(3)):
+                    self.C[f, p][a, b] = C[p, a, b]
+                    self.F[f, p][a, b] = F[p, a, b]
+
+    @ti.kernel
+    def _read_frame(self, f: ti.i32, x: ti.types.ndarray(), v: ti.types.ndarray(), C: ti.types.ndarray(),
+                    F: ti.types.ndarray()):
+        for p in range(self.n):
+            for a in ti.static(range(3)):
+                x[p, a] = self.x[f, p][a]
+                v[p, a] = self.v[f, p][a]
+                for b in ti.static(range(3)):
+                    C[p, a, b] = self.C[f, p][a, b]
+                    F[p, a, b] = self.F[f, p][a, b]
+
+    @ti.kernel
+    def _write_tools(self, f: ti.i32, pos: ti.types.ndarray(), rot: ti.types.ndarray(), gap: ti.types.ndarray()):
+        for k in range(self.n_tools):
+            for a in ti.static(range(3)):
+                self.tool_pos[f, k][a] = pos[k, a]
+            for a in ti.static(range(4)):
+                self.tool_rot[f, k][a] = rot[k, a]
+            self.tool_gap[f, k] = gap[k]
+
+    @ti.kernel
+    def _read_tools(self, f: ti.i32, pos: ti.types.ndarray(), rot: ti.types.ndarray(), gap: ti.types.ndarray()):
+        for k in range(self.n_tools):
+            for a in ti.static(range(3)):
+                pos[k, a] = self.tool_pos[f, k][a]
+            for a in ti.static(range(4)):
+                rot[k, a] = self.tool_rot[f, k][a]
+            gap[k] = self.tool_gap[f, k]
+
+    @ti.kernel
+    def clear_state_grads(self):
+        for f, p in self.x:
+            self.x.grad[f, p] = ti.Vector.zero(ti.f32, 3)
+            self.v.grad[f, p] = ti.Vector.zero(ti.f32, 3)
+            self.C.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
+            self.F.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
+        for f, k in self.tool_pos:
+            self.tool_pos.grad[f, k] = ti.Vector.zero(ti.f32, 3)
+            self.tool_rot.grad[f, k] = ti.Vector.zero(ti.f32, 4)
+            self.tool_gap.grad[f, k] = 0.0
+        for i in self.action:
+            self.action.grad[i] = 0.0
+
+    @ti.kernel
+    def _add_frame_grad(self, f: ti.i32, x: ti.types.ndarray(), v: ti.types.ndarray(), C: ti.types.ndarray(),
+                        F: ti.types.ndarray()):
+        for p in range(self.n):
+            for a in ti.static(range(3)):
+                self.x.grad[f, p][a] += x[p, a]
+                self.v.grad[f, p][a] += v[p, a]
+                for b in ti.static(range(3)):
+                    self.C.grad[f, p][a, b] += C[p, a, b]
+                    self.F.grad[f, p][a, b] += F[p, a, b]
+
+    @ti.kernel
+    def _read_frame_grad(self, f: ti.i32, x: ti.types.ndarray(), v: ti.types.ndarray(), C: ti.types.ndarray(),
+                         F: ti.types.ndarray()):
+        for p in range(self.n):
+            for a in ti.static(range(3)):
+                x[p, a] = self.x.grad[f, p][a]
+                v[p, a] = self.v.grad[f, p][a]
+                for b in ti.static(range(3)):
+                    C[p, a, b] = self.C.grad[f, p][a, b]
+                    F[p, a, b] = self.F.grad[f, p][a, b]
+
+    @ti.kernel
+    def _add_tools_grad(self, f: ti.i32, pos: ti.types.ndarray(), rot: ti.types.ndarray(),
+                        gap: ti.types.ndarray()):
+        for k in range(self.n_tools):
+            for a in ti.static(range(3)):
+                self.tool_pos.grad[f, k][a] += pos[k, a]
+            for a in ti.static(range(4)):
+                self.tool_rot.grad[f, k][a] += rot[k, a]
+            self.tool_gap.grad[f, k] += gap[k]
+
+    @ti.kernel
+    def _read_tools_grad(self, f: ti.i32, pos: ti.types.ndarray(), rot: ti.types.ndarray(),
+                         gap: ti.types.ndarray()):
+        for k in range(self.n_tools):
+            for a in ti.static(range(3)):
+                pos[k, a] = self.tool_pos.grad[f, k][a]
+            for a in ti.static(range(4)):
+                rot[k, a] = self.tool_rot.grad[f, k][a]
+            gap[k] = self.tool_gap.grad[f, k]
+
+    def add_state_grad(self, grad: dict[str, np.ndarray], frame: int) -> None:
+        """Add adjoints (keys as in :meth:`get_state`; missing keys are zero) to a frame."""
+        n, k = self.n, max(self.n_tools, 1)
+
+        def arr(key, shape):
+            value = grad.get(key)
+            return np.zeros(shape, np.float32) if value is None else np.ascontiguousarray(value, np.float32)
+
+        self._add_frame_grad(frame, arr("x", (n, 3)), arr("v", (n, 3)), arr("C", (n, 3, 3)), arr("F", (n, 3, 3)))
+        if self.n_tools:
+            self._add_tools_grad(frame, arr("tool_pos", (k, 3)), arr("tool_rot", (k, 4)), arr("tool_gap", (k,)))
+
+    def read_state_grad(self, frame: int) -> dict[str, np.ndarray]:
+        """Adjoints of a frame's state, keys as in :meth:`get_state`."""
+        n, k = self.n, max(self.n_tools, 1)
+        out = {"x": np.empty((n, 3), np.float32), "v": np.empty((n, 3), np.float32),
+               "C": np.empty((n, 3, 3), np.float32), "F": np.empty((n, 3, 3), np.float32)}
+        self._read_frame_grad(frame, out["x"], out["v"], out["C"], out["F"])
+        pos, rot, gap = np.zeros((k, 3), np.float32), np.zeros((k, 4), np.float32), np.zeros(k, np.float32)
+        if self.n_tools:
+            self._read_tools_grad(frame, pos, rot, gap)
+        out.update(tool_pos=pos[: self.n_tools], tool_rot=rot[: self.n_tools], tool_gap=gap[: self.n_tools])
+        return out
+
+    def read_action_grad(self) -> np.ndarray:
+        return self.action.grad.to_numpy()[: self.action_dim].copy()
+
+    def read_particles(self, frame: int = 0) -> dict[str, np.ndarray]:
+        """Particle state of one frame: x, v (N, 3) and C, F (N, 3, 3), float32 copies."""
+        x = np.empty((self.n, 3), np.float32)
+        v = np.empty((self.n, 3), np.float32)
+        C = np.empty((self.n, 3, 3), np.float32)
+        F = np.empty((self.n, 3, 3), np.float32)
+        self._read_frame(frame, x, v, C, F)
+        return {"x": x, "v": v, "C": C, "F": F}
+
+    def read_tools(self, frame: int = 0) -> dict[str, np.ndarray]:
+        """Tool poses of one frame: pos (K, 3), rot (K, 4) quaternions w-first, gap (K,)."""
+        k = max(self.n_tools, 1)
+        pos = np.zeros((k, 3), np.float32)
+        rot = np.zeros((k, 4), np.float32)
+        gap = np.zeros(k, np.float32)
+        self._read_tools(frame, pos, rot, gap)
+        return {"pos": pos[: self.n_tools], "rot": rot[: self.n_tools], "gap": gap[: self.n_tools]}
+
+    def get_state(self) -> dict[str, np.ndarray]:
+        """Everything needed to resume from here (frame 0): particles and tool poses."""
+        state = self.read_particles(0)
+        state.update({f"tool_{key}": value for key, value in self.read_tools(0).items()})
+        return state
+
+    def set_state(self, state: dict[str, np.ndarray], frame: int = 0) -> None:
+        """Load a state from :meth:`get_state` (F and C default to identity and zero)."""
+        x = np.ascontiguousarray(state["x"], dtype=np.float32)
+        if x.shape != (self.n, 3):
+            raise ValueError(f"state x has shape {x.shape}, this simulator holds ({self.n}, 3)")
+        if not np.isfinite(x).all():
+            raise ValueError("state x holds non-finite positions")
+        v = np.ascontiguousarray(state.get("v", np.zeros_like(x)), dtype=np.float32)
+        C = np.ascontiguousarray(state.get("C", np.zeros((self.n, 3, 3))), dtype=np.float32)
+        F = np.ascontiguousarray(state.get("F", np.broadcast_to(np.eye(3), (self.n, 3, 3))), dtype=np.float32)
+        self._write_frame(frame, x, v, C, F)
+        if self.n_tools:
+            pos = np.ascontiguousarray(state["tool_pos"], dtype=np.float32).reshape(self.n_tools, 3)
+            rot = np.ascontiguousarray(state["tool_rot"], dtype=np.float32).reshape(self.n_tools, 4)
+            gap = np.ascontiguousarray(state["tool_gap"], dtype=np.float32).reshape(self.n_tools)
+            self._write_tools(frame, pos, rot, gap)
+
+    # -------------------------------------------------------------- stepping
+    def check_action(self, action: np.ndarray, step: int | None = None) -> np.ndarray:
+        """Validate an action: shape (A,), finite, within [-1, 1]; returns it as float32."""
+        where = "" if step is None else f" at step {step}"
+        a = np.asarray(action, dtype=np.float32).reshape(-1)
+        if a.shape != (self.action_dim,):
+            raise ActionError(f"action{where} has {a.size} values, expected {self.action_dim}")
+        bad = ~np.isfinite(a) | (np.abs(a) > 1.0 + 1e-6)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ActionError(f"action{where} has value {a[i]!r} at index {i}; actions must be finite and in [-1, 1]")
+        return a
+
+    def load_action(self, action: np.ndarray) -> None:
+        padded = np.zeros(max(self.action_dim, 1), np.float32)
+        padded[: self.action_dim] = action
+        self.action.from_numpy(padded)
+
+    def substep(self, f: int) -> None:
+        """One MPM substep from frame f to f + 1."""
+        self.clear_grid()
+        self.compute_trial_F(f)
+        self.svd()
+        self.p2g(f)
+        self.tool_kinematics(f)
+        self.grid_op(f)
+        self.g2p(f)
+
+    def substep_grad(self, f: int) -> None:
+        """Adjoint of :meth:`substep`: recompute the grid of substep f, then run the adjoints."""
+        self.clear_grid()
+        self.compute_trial_F(f)
+        self.svd()
+        self.p2g(f)
+        self.grid_op(f)
+        self.clear_particle_temporaries_grad()
+        self.g2p.grad(f)
+        self.grid_op.grad(f)
+        self.tool_kinematics.grad(f)
+        self.p2g.grad(f)
+        self.svd_grad()
+        self.compute_trial_F.grad(f)
+
+    def run_substeps(self, action: np.ndarray, step: int | None = None) -> None:
+        """Run one environment step into frames 1..substeps without wrapping back to frame 0."""
+        self.load_action(self.check_action(action, step))
+        for f in range(self.substeps):
+            self.substep(f)
+        self.raise_if_unhealthy(self.substeps, step)
+
+    def step(self, action: np.ndarray, step: int | None = None) -> None:
+        """Advance one environment step under ``action`` (A,) in [-1, 1]."""
+        self.run_substeps(action, step)
+        self.copy_frame(self.substeps, 0)
+
+    def raise_if_unhealthy(self, frame: int, step: int | None) -> None:
+        self.measure_health(frame)
+        total, speed = float(self.health[0]), float(self.health[1])
+        where = "" if step is None else f" at step {step}"
+        if not math.isfinite(total):
+            raise SimulationError(f"simulation blew up{where}: particle state holds non-finite values ({total})")
+        if not math.isfinite(speed) or speed > MAX_SPEED:
+            raise SimulationError(f"simulation blew up{where}: particle speed {speed:.3g} exceeds {MAX_SPEED:g}")
+
+
+_SIMULATORS: dict[tuple, MPMSimulator] = {}
+
+
+def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int | None = None,
+                  differentiable: bool = False) -> MPMSimulator:
+    """A simulator for this layout, shared within the process.
+
+    Taichi compiles kernels per simulator object, so simulators are cached by
+    their compile-time layout; runtime values (material, tools) are set by the
+    caller every time.
+    """
+    ensure_taichi(sim.arch)
+    layout = SimLayout(
+        n_grid=sim.n_grid,
+        n_particles=n_particles or sim.n_particles,
+        dt_s=sim.dt_s,
+        substeps=sim.substeps_per_step,
+        tool_kinds=tuple(t.kind for t in tools),
+        differentiable=differentiable,
+    )
+    key = (layout, sim.particle_lower_bound_cells, sim.boundary_cells)
+    if key not in _SIMULATORS:
+        _SIMULATORS[key] = MPMSimulator(layout, sim.particle_lower_bound_cells, sim.boundary_cells)
+    simulator = _SIMULATORS[key]
+    simulator.set_gravity(sim.gravity_m_s2)
+    simulator.set_softness(sim.contact_softness)
+    simulator.set_tools(tools)
+    return simulator
