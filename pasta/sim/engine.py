@@ -46,6 +46,20 @@ def bspline_weight(fx, i):
     return ti.select(i == 0, 0.5 * (1.5 - fx) ** 2, ti.select(i == 1, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2))
 
 
+@ti.func
+def bspline_slope(fx, i):
+    """d(bspline_weight)/d(fx)."""
+    return ti.select(i == 0, fx - 1.5, ti.select(i == 1, -2.0 * (fx - 1.0), fx - 0.5))
+
+
+@ti.func
+def stencil_weight_and_gradient(fx, i, j, k, inv_dx):
+    """Weight of node (i, j, k) and its gradient with respect to the particle position (world units)."""
+    wx, wy, wz = bspline_weight(fx[0], i), bspline_weight(fx[1], j), bspline_weight(fx[2], k)
+    gx, gy, gz = bspline_slope(fx[0], i), bspline_slope(fx[1], j), bspline_slope(fx[2], k)
+    return wx * wy * wz, inv_dx * ti.Vector([gx * wy * wz, wx * gy * wz, wx * wy * gz])
+
+
 class SimulationError(RuntimeError):
     """The simulation produced NaN or runaway values."""
 
@@ -112,6 +126,7 @@ class MPMSimulator:
         self.U = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
         self.sig = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
         self.V = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
+        self.affine = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
         self.grid_m = ti.field(ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_in = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_out = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
@@ -231,6 +246,7 @@ class MPMSimulator:
             self.U.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
             self.sig.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
             self.V.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
+            self.affine.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
 
     @ti.kernel
     def compute_trial_F(self, f: ti.i32):
@@ -267,23 +283,77 @@ class MPMSimulator:
             v_part = U @ (S @ (K * v_skew)) @ Vt
             self.F_trial.grad[p] += U @ gS_diag @ Vt + u_part + v_part
 
+    @ti.func
+    def particle_mass(self):
+        return self.p_vol * self.density[None]
+
+    @ti.func
+    def stress_for(self, f, p, U, sig, V):
+        """Write the post-plastic F to frame f + 1 and the APIC affine momentum matrix of particle p."""
+        F_new, stress = self.constitutive(U, sig, V)
+        self.F[f + 1, p] = F_new
+        self.affine[p] = (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + (
+            self.particle_mass() * self.C[f, p]
+        )
+
+    @ti.kernel
+    def compute_stress(self, f: ti.i32):
+        for p in range(self.n):
+            self.stress_for(f, p, self.U[p], self.sig[p], self.V[p])
+
+    @ti.kernel
+    def compute_stress_fused(self, f: ti.i32):
+        """Forward-only: trial F, SVD and stress in one pass over the particles."""
+        for p in range(self.n):
+            F_trial = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
+            U, sig, V = ti.svd(F_trial, ti.f32)
+            self.stress_for(f, p, U, sig, V)
+
     @ti.kernel
     def p2g(self, f: ti.i32):
+        """Scatter mass and momentum to the grid. Serial: no float atomics, bit-reproducible."""
+        ti.loop_config(serialize=True)
         for p in range(self.n):
             Xp = self.x[f, p] * self.inv_dx
             base = ti.cast(Xp - 0.5, ti.i32)
             fx = Xp - ti.cast(base, ti.f32)
-            F_new, stress = self.constitutive(self.U[p], self.sig[p], self.V[p])
-            self.F[f + 1, p] = F_new
-            p_mass = self.p_vol * self.density[None]
-            affine = (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + p_mass * self.C[f, p]
+            p_mass = self.particle_mass()
             momentum = p_mass * self.v[f, p]
+            affine = self.affine[p]
             for i, j, k in ti.ndrange(3, 3, 3):
                 offset = ti.Vector([i, j, k])
                 dpos = (ti.cast(offset, ti.f32) - fx) * self.dx
                 weight = bspline_weight(fx[0], i) * bspline_weight(fx[1], j) * bspline_weight(fx[2], k)
                 self.grid_v_in[base + offset] += weight * (momentum + affine @ dpos)
                 self.grid_m[base + offset] += weight * p_mass
+
+    @ti.kernel
+    def p2g_adjoint(self, f: ti.i32):
+        """Hand-written adjoint of ``p2g``: grid adjoints to x[f], v[f] and the affine matrix."""
+        for p in range(self.n):
+            Xp = self.x[f, p] * self.inv_dx
+            base = ti.cast(Xp - 0.5, ti.i32)
+            fx = Xp - ti.cast(base, ti.f32)
+            p_mass = self.particle_mass()
+            momentum = p_mass * self.v[f, p]
+            affine = self.affine[p]
+            g_momentum = ti.Vector.zero(ti.f32, 3)
+            g_affine = ti.Matrix.zero(ti.f32, 3, 3)
+            g_x = ti.Vector.zero(ti.f32, 3)
+            for i, j, k in ti.ndrange(3, 3, 3):
+                offset = ti.Vector([i, j, k])
+                node = base + offset
+                dpos = (ti.cast(offset, ti.f32) - fx) * self.dx
+                weight, d_weight = stencil_weight_and_gradient(fx, i, j, k, self.inv_dx)
+                g_v = self.grid_v_in.grad[node]
+                g_m = self.grid_m.grad[node]
+                contribution = momentum + affine @ dpos
+                g_momentum += weight * g_v
+                g_affine += weight * g_v.outer_product(dpos)
+                g_x += (g_v.dot(contribution) + g_m * p_mass) * d_weight - weight * (affine.transpose() @ g_v)
+            self.v.grad[f, p] += p_mass * g_momentum
+            self.affine.grad[p] += g_affine
+            self.x.grad[f, p] += g_x
 
     @ti.kernel
     def tool_kinematics(self, f: ti.i32):
@@ -415,7 +485,7 @@ class MPMSimulator:
             fx = Xp - ti.cast(base, ti.f32)
             new_v = ti.Vector.zero(ti.f32, 3)
             new_C = ti.Matrix.zero(ti.f32, 3, 3)
-            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+            for i, j, k in ti.ndrange(3, 3, 3):
                 offset = ti.Vector([i, j, k])
                 dpos = ti.cast(offset, ti.f32) - fx
                 g_v = self.grid_v_out[base + offset]
@@ -425,6 +495,32 @@ class MPMSimulator:
             self.v[f + 1, p] = new_v
             self.C[f + 1, p] = new_C
             self.x[f + 1, p] = ti.min(ti.max(self.x[f, p] + self.dt * new_v, self.x_low), self.x_high)
+
+    @ti.kernel
+    def g2p_adjoint(self, f: ti.i32):
+        """Hand-written adjoint of ``g2p``: adjoints of x, v, C at f + 1 to grid_v_out and x at f."""
+        for p in range(self.n):
+            Xp = self.x[f, p] * self.inv_dx
+            base = ti.cast(Xp - 0.5, ti.i32)
+            fx = Xp - ti.cast(base, ti.f32)
+            new_v = self.v[f + 1, p]
+            moved = self.x[f, p] + self.dt * new_v
+            free = ti.Vector([ti.select(self.x_low < moved[d] < self.x_high, 1.0, 0.0) for d in ti.static(range(3))])
+            g_x_next = self.x.grad[f + 1, p] * free
+            g_v = self.v.grad[f + 1, p] + self.dt * g_x_next
+            g_C = self.C.grad[f + 1, p]
+            g_x = g_x_next
+            scale = 4.0 * self.inv_dx
+            for i, j, k in ti.ndrange(3, 3, 3):
+                offset = ti.Vector([i, j, k])
+                node = base + offset
+                dpos = ti.cast(offset, ti.f32) - fx
+                weight, d_weight = stencil_weight_and_gradient(fx, i, j, k, self.inv_dx)
+                grid_v = self.grid_v_out[node]
+                self.grid_v_out.grad[node] += weight * g_v + (scale * weight) * (g_C @ dpos)
+                g_x += (g_v.dot(grid_v) + scale * grid_v.dot(g_C @ dpos)) * d_weight
+                g_x -= (scale * self.inv_dx * weight) * (g_C.transpose() @ grid_v)
+            self.x.grad[f, p] += g_x
 
     @ti.kernel
     def copy_frame(self, src: ti.i32, dst: ti.i32):
@@ -634,25 +730,26 @@ class MPMSimulator:
     def substep(self, f: int) -> None:
         """One MPM substep from frame f to f + 1."""
         self.clear_grid()
-        self.compute_trial_F(f)
-        self.svd()
+        self.compute_stress_fused(f)
         self.p2g(f)
         self.tool_kinematics(f)
         self.grid_op(f)
         self.g2p(f)
 
     def substep_grad(self, f: int) -> None:
-        """Adjoint of :meth:`substep`: recompute the grid of substep f, then run the adjoints."""
+        """Adjoint of :meth:`substep`: recompute the grid of substep f, then run the adjoints in reverse."""
         self.clear_grid()
         self.compute_trial_F(f)
         self.svd()
+        self.compute_stress(f)
         self.p2g(f)
         self.grid_op(f)
         self.clear_particle_temporaries_grad()
-        self.g2p.grad(f)
+        self.g2p_adjoint(f)
         self.grid_op.grad(f)
         self.tool_kinematics.grad(f)
-        self.p2g.grad(f)
+        self.p2g_adjoint(f)
+        self.compute_stress.grad(f)
         self.svd_grad()
         self.compute_trial_F.grad(f)
 
