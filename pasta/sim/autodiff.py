@@ -63,8 +63,9 @@ def backpropagate_episode(sim: MPMSimulator, episode: Episode,
         sim.set_state(episode.checkpoints[t])
         sim.load_action(episode.actions[t])
         for f in range(sim.substeps):
-            sim.substep(f)
+            sim.substep_recorded(f)
         sim.clear_state_grads()
+        sim.clear_particle_temporaries_grad()
         sim.add_state_grad(carried, sim.substeps)
         for f in reversed(range(sim.substeps)):
             sim.substep_grad(f)

@@ -78,6 +78,7 @@ class SimLayout:
     substeps: int
     tool_kinds: tuple[str, ...]
     differentiable: bool
+    collisions: tuple[tuple[int, int], ...] = ()
 
 
 @ti.data_oriented
@@ -123,10 +124,13 @@ class MPMSimulator:
         self.C = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
         self.F = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
         self.F_trial = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
-        self.U = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
-        self.sig = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
-        self.V = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
-        self.affine = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
+        # Per-substep SVD of the trial F and APIC affine matrix, kept so the adjoint pass
+        # recomputes only the grid (P2G and the grid update), not the SVD.
+        svd_frames = frames if grad else 1
+        self.U = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
+        self.sig = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
+        self.V = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
+        self.affine = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
         self.grid_m = ti.field(ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_in = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_out = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
@@ -243,10 +247,11 @@ class MPMSimulator:
     def clear_particle_temporaries_grad(self):
         for p in range(self.n):
             self.F_trial.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
-            self.U.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
-            self.sig.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
-            self.V.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
-            self.affine.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
+        for f, p in self.U:
+            self.U.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
+            self.sig.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
+            self.V.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
+            self.affine.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
 
     @ti.kernel
     def compute_trial_F(self, f: ti.i32):
@@ -254,20 +259,20 @@ class MPMSimulator:
             self.F_trial[p] = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
 
     @ti.kernel
-    def svd(self):
+    def svd(self, f: ti.i32):
         for p in range(self.n):
-            self.U[p], self.sig[p], self.V[p] = ti.svd(self.F_trial[p], ti.f32)
+            self.U[f, p], self.sig[f, p], self.V[f, p] = ti.svd(self.F_trial[p], ti.f32)
 
     @ti.kernel
-    def svd_grad(self):
+    def svd_grad(self, f: ti.i32):
         """Adjoint of ``svd``: F_trial.grad from U.grad, sig.grad and V.grad.
 
         Uses the closed form for the SVD's derivative, with the gaps between
         squared singular values kept at least ``SVD_GAP_FLOOR`` away from zero.
         """
         for p in range(self.n):
-            U, S, V = self.U[p], self.sig[p], self.V[p]
-            gU, gS, gV = self.U.grad[p], self.sig.grad[p], self.V.grad[p]
+            U, S, V = self.U[f, p], self.sig[f, p], self.V[f, p]
+            gU, gS, gV = self.U.grad[f, p], self.sig.grad[f, p], self.V.grad[f, p]
             sq = ti.Vector([S[0, 0] ** 2, S[1, 1] ** 2, S[2, 2] ** 2])
             K = ti.Matrix.zero(ti.f32, 3, 3)
             for i, j in ti.static(ti.ndrange(3, 3)):
@@ -281,7 +286,7 @@ class MPMSimulator:
             v_skew = Vt @ gV - gV.transpose() @ V
             u_part = U @ ((K * u_skew) @ S) @ Vt
             v_part = U @ (S @ (K * v_skew)) @ Vt
-            self.F_trial.grad[p] += U @ gS_diag @ Vt + u_part + v_part
+            self.F_trial.grad[p] = U @ gS_diag @ Vt + u_part + v_part
 
     @ti.func
     def particle_mass(self):
@@ -292,14 +297,14 @@ class MPMSimulator:
         """Write the post-plastic F to frame f + 1 and the APIC affine momentum matrix of particle p."""
         F_new, stress = self.constitutive(U, sig, V)
         self.F[f + 1, p] = F_new
-        self.affine[p] = (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + (
+        self.affine[f, p] = (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + (
             self.particle_mass() * self.C[f, p]
         )
 
     @ti.kernel
     def compute_stress(self, f: ti.i32):
         for p in range(self.n):
-            self.stress_for(f, p, self.U[p], self.sig[p], self.V[p])
+            self.stress_for(f, p, self.U[f, p], self.sig[f, p], self.V[f, p])
 
     @ti.kernel
     def compute_stress_fused(self, f: ti.i32):
@@ -319,7 +324,7 @@ class MPMSimulator:
             fx = Xp - ti.cast(base, ti.f32)
             p_mass = self.particle_mass()
             momentum = p_mass * self.v[f, p]
-            affine = self.affine[p]
+            affine = self.affine[f, p]
             for i, j, k in ti.ndrange(3, 3, 3):
                 offset = ti.Vector([i, j, k])
                 dpos = (ti.cast(offset, ti.f32) - fx) * self.dx
@@ -336,7 +341,7 @@ class MPMSimulator:
             fx = Xp - ti.cast(base, ti.f32)
             p_mass = self.particle_mass()
             momentum = p_mass * self.v[f, p]
-            affine = self.affine[p]
+            affine = self.affine[f, p]
             g_momentum = ti.Vector.zero(ti.f32, 3)
             g_affine = ti.Matrix.zero(ti.f32, 3, 3)
             g_x = ti.Vector.zero(ti.f32, 3)
@@ -352,7 +357,7 @@ class MPMSimulator:
                 g_affine += weight * g_v.outer_product(dpos)
                 g_x += (g_v.dot(contribution) + g_m * p_mass) * d_weight - weight * (affine.transpose() @ g_v)
             self.v.grad[f, p] += p_mass * g_momentum
-            self.affine.grad[p] += g_affine
+            self.affine.grad[f, p] += g_affine
             self.x.grad[f, p] += g_x
 
     @ti.kernel
@@ -393,9 +398,49 @@ class MPMSimulator:
             rot = quat_mul(axis_angle_to_quat(ti.Vector([0.0, -yaw, 0.0])), rot)
             rot = quat_normalised(quat_mul(rot, axis_angle_to_quat(ti.Vector([0.0, 0.0, roll]))))
         pos = ti.min(ti.max(pos, self.tool_lower[k]), self.tool_upper[k])
+        for pair in ti.static(self.layout.collisions):
+            if ti.static(pair[0] == k):
+                pos = self.separate_from_obstacle(k, pair[1], pos, rot, gap)
         self.tool_pos[f + 1, k] = pos
         self.tool_rot[f + 1, k] = rot
         self.tool_gap[f + 1, k] = gap
+
+    @ti.func
+    def world_half_extents(self, k: ti.template(), rot, gap):
+        """Half extents (3,) of the world-axis-aligned box around tool k at this rotation and gap."""
+        local = ti.Vector.zero(ti.f32, 3)
+        if ti.static(self.tool_kinds[k] == "box"):
+            local = self.tool_half[k]
+        elif ti.static(self.tool_kinds[k] == "gripper"):
+            local = self.tool_half[k] + ti.Vector([0.5 * gap, 0.0, 0.0])
+        elif ti.static(self.tool_kinds[k] == "rolling_pin"):
+            r = self.tool_radius[k]
+            local = ti.Vector([r, r, self.tool_half_length[k] + r])
+        elif ti.static(self.tool_kinds[k] == "knife"):
+            local = ti.Vector([self.tool_half[k][0], self.tool_half[k][1] + self.tool_blade_depth[k],
+                               self.tool_half[k][2]])
+        return ti.abs(quat_to_matrix(rot)) @ local
+
+    @ti.func
+    def separate_from_obstacle(self, k: ti.template(), j: ti.template(), pos, rot, gap):
+        """Push tool k out of static box j along the axis of least overlap (bounding boxes).
+
+        A simplification of the official projection of 600 board points: both tools are
+        treated as world-axis-aligned boxes, which is exact for the unrotated spatula and board.
+        """
+        half_k = self.world_half_extents(k, rot, gap)
+        half_j = ti.abs(quat_to_matrix(self.tool_rot[0, j])) @ self.tool_half[j]
+        offset = pos - self.tool_pos[0, j]
+        overlap = half_k + half_j - ti.abs(offset)
+        axis = 0
+        if overlap[1] < overlap[axis]:
+            axis = 1
+        if overlap[2] < overlap[axis]:
+            axis = 2
+        push = ti.Vector.zero(ti.f32, 3)
+        push[axis] = ti.select(offset[axis] >= 0.0, 1.0, -1.0) * overlap[axis]
+        penetrating = overlap[0] > 0.0 and overlap[1] > 0.0 and overlap[2] > 0.0
+        return ti.select(penetrating, pos + push, pos)
 
     @ti.func
     def scaled(self, i: ti.template()):
@@ -728,7 +773,7 @@ class MPMSimulator:
         self.action.from_numpy(padded)
 
     def substep(self, f: int) -> None:
-        """One MPM substep from frame f to f + 1."""
+        """One MPM substep from frame f to f + 1 (forward only: trial F, SVD and stress fused)."""
         self.clear_grid()
         self.compute_stress_fused(f)
         self.p2g(f)
@@ -736,21 +781,33 @@ class MPMSimulator:
         self.grid_op(f)
         self.g2p(f)
 
-    def substep_grad(self, f: int) -> None:
-        """Adjoint of :meth:`substep`: recompute the grid of substep f, then run the adjoints in reverse."""
+    def substep_recorded(self, f: int) -> None:
+        """The same substep, keeping the SVD of frame f for the adjoint pass."""
         self.clear_grid()
         self.compute_trial_F(f)
-        self.svd()
+        self.svd(f)
         self.compute_stress(f)
         self.p2g(f)
+        self.tool_kinematics(f)
         self.grid_op(f)
-        self.clear_particle_temporaries_grad()
+        self.g2p(f)
+
+    def substep_grad(self, f: int) -> None:
+        """Adjoint of substep f, after :meth:`substep_recorded` filled the frames.
+
+        Recomputes the grid of substep f (P2G and the grid update), then runs the adjoints in
+        reverse order. The adjoints of U, sig, V and the affine matrix must be zero on entry
+        (:meth:`clear_particle_temporaries_grad`).
+        """
+        self.clear_grid()
+        self.p2g(f)
+        self.grid_op(f)
         self.g2p_adjoint(f)
         self.grid_op.grad(f)
         self.tool_kinematics.grad(f)
         self.p2g_adjoint(f)
         self.compute_stress.grad(f)
-        self.svd_grad()
+        self.svd_grad(f)
         self.compute_trial_F.grad(f)
 
     def run_substeps(self, action: np.ndarray, step: int | None = None) -> None:
@@ -778,6 +835,19 @@ class MPMSimulator:
 _SIMULATORS: dict[tuple, MPMSimulator] = {}
 
 
+def collision_pairs(tools: Sequence[ToolConfig]) -> tuple[tuple[int, int], ...]:
+    """(moving tool, static box obstacle) index pairs from each tool's ``collides_with``."""
+    index = {t.name: i for i, t in enumerate(tools)}
+    pairs = []
+    for i, tool in enumerate(tools):
+        for name in tool.collides_with:
+            j = index[name]
+            if not (tools[j].static and tools[j].kind == "box"):
+                raise ValueError(f"tool {tool.name!r} collides with {name!r}, which must be a static box")
+            pairs.append((i, j))
+    return tuple(pairs)
+
+
 def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int | None = None,
                   differentiable: bool = False) -> MPMSimulator:
     """A simulator for this layout, shared within the process.
@@ -794,6 +864,7 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
         substeps=sim.substeps_per_step,
         tool_kinds=tuple(t.kind for t in tools),
         differentiable=differentiable,
+        collisions=collision_pairs(tools),
     )
     key = (layout, sim.particle_lower_bound_cells, sim.boundary_cells)
     if key not in _SIMULATORS:
