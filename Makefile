@@ -8,7 +8,7 @@ test:
 	bash scripts/test.sh
 
 demo: setup
-	.venv/bin/pasta sim-demo --task CutRearrange
+	.venv/bin/pasta sim-demo --task CutRearrange --profile small
 
 bench: setup
 	.venv/bin/python benchmarks/sim.py --quick

@@ -20,8 +20,8 @@ softness and every tool size, friction and action scale.
 
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import taichi as ti
@@ -29,7 +29,7 @@ import taichi as ti
 from pasta.config.schema import MaterialConfig, SimConfig, ToolConfig
 from pasta.sim.quaternion import axis_angle_to_quat, quat_mul, quat_normalised, quat_to_matrix
 from pasta.sim.runtime import ensure_taichi
-from pasta.sim.tool_geometry import box_sdf, capsule_sdf, knife_sdf
+from pasta.sim.tool_geometry import box_sdf_normal, capsule_sdf_normal, knife_sdf_normal
 
 ACTION_DIMS = {"box": 6, "knife": 3, "gripper": 7, "rolling_pin": 6}
 SINGULAR_VALUE_FLOOR = 0.05
@@ -79,6 +79,7 @@ class SimLayout:
     tool_kinds: tuple[str, ...]
     differentiable: bool
     collisions: tuple[tuple[int, int], ...] = ()
+    static_tools: tuple[bool, ...] = ()
 
 
 @ti.data_oriented
@@ -109,10 +110,12 @@ class MPMSimulator:
         self.x_low = max(1, lower_bound_cells) * self.dx
         self.x_high = 1.0 - 3.0 * self.dx
 
+        static = layout.static_tools or (False,) * self.n_tools
         offsets, total = [], 0
-        for kind in self.tool_kinds:
+        for kind, is_static in zip(self.tool_kinds, static, strict=True):
             offsets.append(total)
-            total += ACTION_DIMS[kind]
+            total += 0 if is_static else ACTION_DIMS[kind]
+        self.static_tools = static
         self.action_offsets = tuple(offsets)
         self.action_dim = total
 
@@ -148,6 +151,7 @@ class MPMSimulator:
         self.ground_friction = ti.field(ti.f32, shape=())
         self.gravity = ti.Vector.field(3, ti.f32, shape=())
         self.softness = ti.field(ti.f32, shape=())
+        self.expel_rate = ti.field(ti.f32, shape=())
         self.tool_half = ti.Vector.field(3, ti.f32, shape=n_tools)
         self.tool_radius = ti.field(ti.f32, shape=n_tools)
         self.tool_half_length = ti.field(ti.f32, shape=n_tools)
@@ -158,7 +162,6 @@ class MPMSimulator:
         self.tool_friction = ti.field(ti.f32, shape=n_tools)
         self.tool_lower = ti.Vector.field(3, ti.f32, shape=n_tools)
         self.tool_upper = ti.Vector.field(3, ti.f32, shape=n_tools)
-        self.tool_active = ti.field(ti.f32, shape=n_tools)
         self.action_scale = ti.field(ti.f32, shape=max(self.action_dim, 1))
         self.health = ti.field(ti.f32, shape=2)  # [non-finite count, max speed]
 
@@ -182,11 +185,19 @@ class MPMSimulator:
             raise ValueError(f"contact softness must be >= 0, got {softness}")
         self.softness[None] = softness
 
+    def set_expel_rate(self, rate: float) -> None:
+        """Fraction of its depth inside a tool that a grid node loses per substep (0: none, as official)."""
+        if not 0.0 <= rate <= 1.0:
+            raise ValueError(f"expel rate must be in [0, 1], got {rate}")
+        self.expel_rate[None] = rate
+
     def set_tools(self, tools: Sequence[ToolConfig]) -> None:
         """Set every tool's geometry, friction, bounds and action scales (runtime values)."""
         kinds = tuple(t.kind for t in tools)
-        if kinds != self.tool_kinds:
-            raise ValueError(f"tool kinds {kinds} do not match the compiled layout {self.tool_kinds}")
+        static = tuple(t.static for t in tools)
+        if kinds != self.tool_kinds or static != self.static_tools:
+            raise ValueError(f"tools {kinds} (static {static}) do not match the compiled layout "
+                             f"{self.tool_kinds} (static {self.static_tools})")
         scales = np.zeros(max(self.action_dim, 1), dtype=np.float32)
         for k, tool in enumerate(tools):
             self.tool_half[k] = tool.half_extents
@@ -199,7 +210,6 @@ class MPMSimulator:
             self.tool_friction[k] = tool.friction
             self.tool_lower[k] = tool.lower_bound
             self.tool_upper[k] = tool.upper_bound
-            self.tool_active[k] = 0.0 if tool.static else 1.0
             if not tool.static:
                 start = self.action_offsets[k]
                 scales[start : start + ACTION_DIMS[tool.kind]] = tool.action_scales
@@ -234,14 +244,14 @@ class MPMSimulator:
     # ------------------------------------------------------------------ kernels
     @ti.kernel
     def clear_grid(self):
-        for I in ti.grouped(self.grid_m):
-            self.grid_m[I] = 0.0
-            self.grid_v_in[I] = ti.Vector.zero(ti.f32, 3)
-            self.grid_v_out[I] = ti.Vector.zero(ti.f32, 3)
+        for cell in ti.grouped(self.grid_m):
+            self.grid_m[cell] = 0.0
+            self.grid_v_in[cell] = ti.Vector.zero(ti.f32, 3)
+            self.grid_v_out[cell] = ti.Vector.zero(ti.f32, 3)
             if ti.static(self.differentiable):
-                self.grid_m.grad[I] = 0.0
-                self.grid_v_in.grad[I] = ti.Vector.zero(ti.f32, 3)
-                self.grid_v_out.grad[I] = ti.Vector.zero(ti.f32, 3)
+                self.grid_m.grad[cell] = 0.0
+                self.grid_v_in.grad[cell] = ti.Vector.zero(ti.f32, 3)
+                self.grid_v_out.grad[cell] = ti.Vector.zero(ti.f32, 3)
 
     @ti.kernel
     def clear_particle_temporaries_grad(self):
@@ -365,7 +375,12 @@ class MPMSimulator:
         """Advance every tool's pose from frame f to f + 1 under the current action."""
         for _ in range(1):
             for k in ti.static(range(self.n_tools)):
-                self.advance_tool(f, k)
+                if ti.static(self.static_tools[k]):
+                    self.tool_pos[f + 1, k] = self.tool_pos[f, k]
+                    self.tool_rot[f + 1, k] = self.tool_rot[f, k]
+                    self.tool_gap[f + 1, k] = self.tool_gap[f, k]
+                else:
+                    self.advance_tool(f, k)
 
     @ti.func
     def advance_tool(self, f, k: ti.template()):
@@ -374,24 +389,23 @@ class MPMSimulator:
         pos = self.tool_pos[f, k]
         rot = self.tool_rot[f, k]
         gap = self.tool_gap[f, k]
-        active = self.tool_active[k]
         if ti.static(self.tool_kinds[k] == "knife"):
-            pos += active * inv_sub * ti.Vector([self.scaled(a0 + d) for d in ti.static(range(3))])
+            pos += inv_sub * ti.Vector([self.scaled(a0 + d) for d in ti.static(range(3))])
         elif ti.static(self.tool_kinds[k] == "box"):
-            pos += active * inv_sub * ti.Vector([self.scaled(a0 + d) for d in ti.static(range(3))])
-            w = active * inv_sub * ti.Vector([self.scaled(a0 + 3 + d) for d in ti.static(range(3))])
+            pos += inv_sub * ti.Vector([self.scaled(a0 + d) for d in ti.static(range(3))])
+            w = inv_sub * ti.Vector([self.scaled(a0 + 3 + d) for d in ti.static(range(3))])
             rot = quat_normalised(quat_mul(axis_angle_to_quat(w), rot))
         elif ti.static(self.tool_kinds[k] == "gripper"):
-            pos += active * inv_sub * ti.Vector([self.scaled(a0 + d) for d in ti.static(range(3))])
-            w = active * inv_sub * ti.Vector([self.scaled(a0 + 3 + d) for d in ti.static(range(3))])
+            pos += inv_sub * ti.Vector([self.scaled(a0 + d) for d in ti.static(range(3))])
+            w = inv_sub * ti.Vector([self.scaled(a0 + 3 + d) for d in ti.static(range(3))])
             rot = quat_normalised(quat_mul(rot, axis_angle_to_quat(w)))
-            gap = ti.min(ti.max(gap - active * inv_sub * self.scaled(a0 + 6), self.tool_min_gap[k]),
+            gap = ti.min(ti.max(gap - inv_sub * self.scaled(a0 + 6), self.tool_min_gap[k]),
                          self.tool_max_gap[k])
         elif ti.static(self.tool_kinds[k] == "rolling_pin"):
-            roll = active * inv_sub * self.scaled(a0)
-            yaw = active * inv_sub * self.scaled(a0 + 1)
-            lift = active * inv_sub * self.scaled(a0 + 2)
-            slide = active * inv_sub * self.scaled(a0 + 3)
+            roll = inv_sub * self.scaled(a0)
+            yaw = inv_sub * self.scaled(a0 + 1)
+            lift = inv_sub * self.scaled(a0 + 2)
+            slide = inv_sub * self.scaled(a0 + 3)
             axis = quat_to_matrix(rot) @ ti.Vector([0.0, 0.0, 1.0])
             direction = ti.Vector([0.0, 1.0, 0.0]).cross(axis)
             pos += direction * (roll * self.tool_radius[k] + slide) + ti.Vector([0.0, lift, 0.0])
@@ -432,13 +446,12 @@ class MPMSimulator:
         half_j = ti.abs(quat_to_matrix(self.tool_rot[0, j])) @ self.tool_half[j]
         offset = pos - self.tool_pos[0, j]
         overlap = half_k + half_j - ti.abs(offset)
-        axis = 0
-        if overlap[1] < overlap[axis]:
-            axis = 1
-        if overlap[2] < overlap[axis]:
-            axis = 2
-        push = ti.Vector.zero(ti.f32, 3)
-        push[axis] = ti.select(offset[axis] >= 0.0, 1.0, -1.0) * overlap[axis]
+        least = ti.min(overlap[0], ti.min(overlap[1], overlap[2]))
+        along_x = overlap[0] <= least
+        along_y = (not along_x) and overlap[1] <= least
+        direction = ti.select(along_x, ti.Vector([1.0, 0.0, 0.0]),
+                              ti.select(along_y, ti.Vector([0.0, 1.0, 0.0]), ti.Vector([0.0, 0.0, 1.0])))
+        push = direction * ti.select(offset.dot(direction) >= 0.0, 1.0, -1.0) * least
         penetrating = overlap[0] > 0.0 and overlap[1] > 0.0 and overlap[2] > 0.0
         return ti.select(penetrating, pos + push, pos)
 
@@ -447,19 +460,19 @@ class MPMSimulator:
         return ti.min(ti.max(self.action[i], -1.0), 1.0) * self.action_scale[i]
 
     @ti.func
-    def local_sdf(self, k: ti.template(), finger: ti.template(), p, gap):
-        """SDF of tool k (finger 0/1 for a gripper) at local point p."""
-        d = 0.0
+    def local_sdf_normal(self, k: ti.template(), finger: ti.template(), p, gap):
+        """SDF and outward normal of tool k (finger 0/1 for a gripper) at local point p."""
+        sdf, normal = 0.0, ti.Vector([0.0, 1.0, 0.0])
         if ti.static(self.tool_kinds[k] == "box"):
-            d = box_sdf(p, self.tool_half[k])
+            sdf, normal = box_sdf_normal(p, self.tool_half[k])
         elif ti.static(self.tool_kinds[k] == "knife"):
-            d = knife_sdf(p, self.tool_half[k], self.tool_blade_depth[k], self.tool_blade_slope[k])
+            sdf, normal = knife_sdf_normal(p, self.tool_half[k], self.tool_blade_depth[k], self.tool_blade_slope[k])
         elif ti.static(self.tool_kinds[k] == "rolling_pin"):
-            d = capsule_sdf(p, self.tool_radius[k], self.tool_half_length[k])
+            sdf, normal = capsule_sdf_normal(p, self.tool_radius[k], self.tool_half_length[k])
         elif ti.static(self.tool_kinds[k] == "gripper"):
             sign = ti.static(1.0 if finger == 0 else -1.0)
-            d = box_sdf(p - ti.Vector([sign * 0.5 * gap, 0.0, 0.0]), self.tool_half[k])
-        return d
+            sdf, normal = box_sdf_normal(p - ti.Vector([sign * 0.5 * gap, 0.0, 0.0]), self.tool_half[k])
+        return sdf, normal
 
     @ti.func
     def collide(self, f, k: ti.template(), finger: ti.template(), node, v):
@@ -467,18 +480,11 @@ class MPMSimulator:
         R0 = quat_to_matrix(self.tool_rot[f, k])
         local = R0.transpose() @ (node - self.tool_pos[f, k])
         gap0 = self.tool_gap[f, k]
-        sdf = self.local_sdf(k, finger, local, gap0)
+        sdf, normal_local = self.local_sdf_normal(k, finger, local, gap0)
+        normal = R0 @ normal_local
         softness = self.softness[None]
         influence = ti.min(ti.exp(-sdf * softness), 1.0)
         in_contact = sdf <= 0.0 or (softness > 0.0 and influence > SOFT_CONTACT_CUTOFF)
-        h = 1e-4
-        grad_local = ti.Vector.zero(ti.f32, 3)
-        for d in ti.static(range(3)):
-            e = ti.Vector.unit(3, d, ti.f32) * h
-            grad_local[d] = (self.local_sdf(k, finger, local + e, gap0)
-                             - self.local_sdf(k, finger, local - e, gap0)) / (2 * h)
-        normal = R0 @ grad_local
-        normal = normal / ti.sqrt(normal.dot(normal) + 1e-12)
         # Rigid velocity of the tool's material point at this node, including the gap motion.
         finger_shift0 = ti.Vector.zero(ti.f32, 3)
         finger_shift1 = ti.Vector.zero(ti.f32, 3)
@@ -491,21 +497,23 @@ class MPMSimulator:
         v_tool = (moved - node) / self.dt
         rel = v - v_tool
         normal_speed = rel.dot(normal)
-        tangential = rel - ti.min(normal_speed, 0.0) * normal
+        # Nodes inside the tool leave it at a speed that removes a fraction of their depth per substep.
+        expel = self.expel_rate[None] * ti.max(-sdf, 0.0) / self.dt
+        removed = ti.min(normal_speed - expel, 0.0)
+        tangential = rel - normal_speed * normal
         t_norm = ti.sqrt(tangential.dot(tangential) + 1e-20)
-        with_friction = tangential / t_norm * ti.max(0.0, t_norm + normal_speed * self.tool_friction[k])
-        tangential = ti.select(normal_speed < 0.0, with_friction, tangential)
+        with_friction = tangential / t_norm * ti.max(0.0, t_norm + removed * self.tool_friction[k])
+        tangential = ti.select(removed < 0.0, with_friction, tangential) + ti.max(normal_speed, expel) * normal
         projected = v_tool + rel * (1.0 - influence) + tangential * influence
-        result = ti.select(in_contact, projected, v)
-        return result
+        return ti.select(in_contact, projected, v)
 
     @ti.kernel
     def grid_op(self, f: ti.i32):
-        for I in ti.grouped(self.grid_m):
-            m = self.grid_m[I]
+        for cell in ti.grouped(self.grid_m):
+            m = self.grid_m[cell]
             if m > 1e-12:
-                v = self.grid_v_in[I] / m + self.dt * self.gravity[None]
-                node = ti.cast(I, ti.f32) * self.dx
+                v = self.grid_v_in[cell] / m + self.dt * self.gravity[None]
+                node = ti.cast(cell, ti.f32) * self.dx
                 for k in ti.static(range(self.n_tools)):
                     v = self.collide(f, k, 0, node, v)
                     if ti.static(self.tool_kinds[k] == "gripper"):
@@ -514,13 +522,13 @@ class MPMSimulator:
                 mu_g = self.ground_friction[None]
                 t_norm = ti.sqrt(v[0] * v[0] + v[2] * v[2] + 1e-20)
                 scale = ti.select(mu_g >= 10.0, 0.0, ti.max(1.0 + mu_g * v[1] / t_norm, 0.0))
-                on_ground = I[1] < bound and v[1] < 0.0
+                on_ground = cell[1] < bound and v[1] < 0.0
                 v = ti.select(on_ground, ti.Vector([v[0] * scale, 0.0, v[2] * scale]), v)
                 for d in ti.static(range(3)):
-                    outward_low = I[d] < bound and v[d] < 0.0
-                    outward_high = I[d] > self.n_grid - bound and v[d] > 0.0
+                    outward_low = cell[d] < bound and v[d] < 0.0
+                    outward_high = cell[d] > self.n_grid - bound and v[d] > 0.0
                     v[d] = ti.select(outward_low or outward_high, 0.0, v[d])
-                self.grid_v_out[I] = v
+                self.grid_v_out[cell] = v
 
     @ti.kernel
     def g2p(self, f: ti.i32):
@@ -750,7 +758,10 @@ class MPMSimulator:
         self._write_frame(frame, x, v, C, F)
         if self.n_tools:
             pos = np.ascontiguousarray(state["tool_pos"], dtype=np.float32).reshape(self.n_tools, 3)
-            rot = np.ascontiguousarray(state["tool_rot"], dtype=np.float32).reshape(self.n_tools, 4)
+            rot = np.array(state["tool_rot"], dtype=np.float32).reshape(self.n_tools, 4)
+            norms = np.linalg.norm(rot.astype(np.float64), axis=1)
+            off_unit = np.abs(norms - 1.0) > 1e-6  # renormalise only what is not already unit (exact round trips)
+            rot[off_unit] = (rot[off_unit] / norms[off_unit, None]).astype(np.float32)
             gap = np.ascontiguousarray(state["tool_gap"], dtype=np.float32).reshape(self.n_tools)
             self._write_tools(frame, pos, rot, gap)
 
@@ -865,6 +876,7 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
         tool_kinds=tuple(t.kind for t in tools),
         differentiable=differentiable,
         collisions=collision_pairs(tools),
+        static_tools=tuple(t.static for t in tools),
     )
     key = (layout, sim.particle_lower_bound_cells, sim.boundary_cells)
     if key not in _SIMULATORS:
@@ -872,5 +884,6 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
     simulator = _SIMULATORS[key]
     simulator.set_gravity(sim.gravity_m_s2)
     simulator.set_softness(sim.contact_softness)
+    simulator.set_expel_rate(sim.tool_expel_rate)
     simulator.set_tools(tools)
     return simulator

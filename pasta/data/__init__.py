@@ -1,0 +1,1 @@
+"""Datasets: trajectory storage and index (configuration generators and scripted skills come later)."""
