@@ -90,12 +90,11 @@ def measure_task(task: str, steps: int) -> dict:
     import numpy as np
 
     from pasta.config import load
-    from pasta.sim.envs import make_env
+    from pasta.sim.envs import default_configuration, make_env
 
     cfg = load(task, "small")
     env = make_env(cfg)
-    module = sys.modules[type(env).__module__]
-    configuration = module.default_configuration(cfg, np.random.default_rng(0))
+    configuration = default_configuration(cfg, np.random.default_rng(0))
     env.reset(configuration)
     action = np.zeros(env.action_dim, np.float32)
     env.step(action)

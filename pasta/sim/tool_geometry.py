@@ -34,9 +34,8 @@ def box_sdf_normal(p, half):
     q_max = ti.max(q[0], ti.max(q[1], q[2]))
     along_x = q[0] >= q_max
     along_y = (not along_x) and q[1] >= q_max
-    inside_normal = ti.select(
-        along_x, ti.Vector([s[0], 0.0, 0.0]), ti.select(along_y, ti.Vector([0.0, s[1], 0.0]), ti.Vector([0.0, 0.0, s[2]]))
-    )
+    not_x = ti.select(along_y, ti.Vector([0.0, s[1], 0.0]), ti.Vector([0.0, 0.0, s[2]]))
+    inside_normal = ti.select(along_x, ti.Vector([s[0], 0.0, 0.0]), not_x)
     is_outside = q_max > 0.0
     sdf = ti.select(is_outside, outside_len, q_max)
     normal = ti.select(is_outside, s * outside / outside_len, inside_normal)

@@ -206,6 +206,11 @@ class DoughEnv:
         return self.cfg.skills
 
     @property
+    def simulator(self) -> MPMSimulator:
+        """The simulator holding this environment's state (for gradient-based optimisation)."""
+        return self._require_reset()
+
+    @property
     def action_dim(self) -> int:
         return self._simulator.action_dim
 
