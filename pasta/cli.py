@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
+import os
 import sys
 from collections.abc import Sequence
 
@@ -41,6 +43,16 @@ def _cmd_sim_demo(args: argparse.Namespace) -> int:
     return result if isinstance(result, int) else 0
 
 
+def _cmd_data(args: argparse.Namespace) -> int:
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+    data_flow = importlib.import_module("flows.data")
+    summary = data_flow.run(args.task, profile=args.profile, method=args.method, workers=args.workers,
+                            overrides=args.set, dask_address=args.dask_address, seed=args.seed)
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pasta", description="PASTA re-implementation: simulator, data, training, planning."
@@ -62,6 +74,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_task_profile(demo)
     demo.add_argument("--out", default=None, help="output folder (default: chosen by the demo)")
     demo.set_defaults(func=_cmd_sim_demo)
+
+    data = sub.add_parser("data", help="generate a task's demonstration dataset (Prefect flow, MLflow run)")
+    _add_task_profile(data)
+    data.add_argument("--method", default="gbto", help="gbto (scripted warm start + optimisation) or scripted")
+    data.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    data.add_argument("--dask-address", default=None, help="run the demos on this Dask scheduler instead")
+    data.add_argument("--seed", type=int, default=0)
+    data.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
+    data.set_defaults(func=_cmd_data)
     return parser
 
 

@@ -51,7 +51,7 @@ def check_method(method: str) -> str:
 
 
 def attention_mask(points: np.ndarray, attention: tuple[int, ...], cfg: TaskConfig) -> np.ndarray:
-    """(N,) bool mask of the particles in the attended entities (DBSCAN labels, section 2.2)."""
+    """(P,) bool mask of the observation points in the attended entities (DBSCAN labels, section 2.2)."""
     labels = label_entities(points, eps=cfg.data.dbscan_eps, min_samples=cfg.data.dbscan_min_samples,
                             min_points=cfg.data.dbscan_min_points)
     return np.isin(labels, np.asarray(attention, dtype=labels.dtype))
@@ -106,8 +106,8 @@ def generate_demo(cfg: TaskConfig, problem: SkillProblem, trajectory_id: int, me
     env = make_env(cfg)
     env.reset(problem.initial)
     env.settle(cfg.sim.settle_steps)
-    mask = attention_mask(env.particles(), problem.attention, cfg)
-    place_tool_for_skill(env, problem.skill, mask)
+    mask = attention_mask(env.observation().dough_points, problem.attention, cfg)
+    place_tool_for_skill(env, problem.skill, mask, target)
     start_state = env.get_state()
     emd_initial = shape_distance(env.observation().dough_points, target, seed)
     warm_start = scripted_actions(env, problem.skill, target, mask, n_steps)

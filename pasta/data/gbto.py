@@ -94,8 +94,8 @@ def optimise_actions(
     actions = torch.tensor(np.clip(initial_actions, -1.0, 1.0), dtype=torch.float64) * mask
     actions.requires_grad_(True)
     optimiser = torch.optim.Adam([actions], lr=settings.lr)
-    target = torch.as_tensor(target_points, dtype=torch.float64)
-    x0 = torch.as_tensor(state0["x"], dtype=torch.float64)
+    target = torch.tensor(np.asarray(target_points), dtype=torch.float64)
+    x0 = torch.tensor(np.asarray(state0["x"]), dtype=torch.float64)
     previous_softness = float(sim.softness[None])
     sim.set_softness(settings.softness)
     losses, best_loss, best_actions = [], float("inf"), actions.detach().clone()

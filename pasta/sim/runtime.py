@@ -26,6 +26,19 @@ def kernel_cache_dir() -> Path:
     return Path(os.environ.get(CACHE_ENV, default))
 
 
+THREADS_ENV = "PASTA_TAICHI_THREADS"
+
+
+def cpu_threads() -> int:
+    """Taichi's CPU threads: ``$PASTA_TAICHI_THREADS`` (set by process pools), else every core."""
+    value = os.environ.get(THREADS_ENV)
+    if value is None:
+        return os.cpu_count() or 1
+    if not value.isdigit() or int(value) < 1:
+        raise ValueError(f"{THREADS_ENV} must be a positive integer, got {value!r}")
+    return int(value)
+
+
 def _cuda_available() -> bool:
     try:
         import torch
@@ -64,7 +77,7 @@ def ensure_taichi(arch: str = "cpu") -> str:
             default_ip=ti.i32,
             offline_cache=True,
             offline_cache_file_path=str(cache),
-            cpu_max_num_threads=os.cpu_count() or 1,
+            cpu_max_num_threads=cpu_threads(),
             log_level=ti.ERROR,
         )
         _arch_in_use = wanted

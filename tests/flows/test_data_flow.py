@@ -1,0 +1,53 @@
+"""The data-generation flow: a real Prefect flow run on a process pool, recorded in a real MLflow store."""
+
+import mlflow
+import pytest
+
+from pasta.config.loader import ConfigError
+
+pytestmark = pytest.mark.flow
+
+
+def test_data_flow_makes_demos_once_and_logs_them(prefect_server, isolated_store):
+    from flows import data
+
+    tmp_path, uri = isolated_store
+    first = data.run("CutRearrange", "smoke", method="scripted", workers=1)
+    assert first["demos"] == first["made"] >= 3
+    files = sorted((tmp_path / "home" / "data" / "CutRearrange" / "smoke" / "scripted").glob("trajectory_*.npz"))
+    assert len(files) == first["demos"]
+    mtimes = [f.stat().st_mtime_ns for f in files]
+
+    second = data.run("CutRearrange", "smoke", method="scripted", workers=1)
+    assert second["made"] == 0 and second["reused"] == first["demos"]
+    assert [f.stat().st_mtime_ns for f in files] == mtimes, "a finished demo was written again"
+
+    mlflow.set_tracking_uri(uri)
+    runs = mlflow.search_runs(experiment_names=["pasta/CutRearrange"])
+    assert len(runs) == 2
+    assert set(runs["tags.pasta.stage"]) == {"data"}
+    assert (runs["metrics.demos"] == first["demos"]).all()
+    assert runs["metrics.performance_median"].notna().all()
+
+
+def test_data_flow_resumes_after_a_lost_demo(prefect_server, isolated_store):
+    from flows import data
+
+    tmp_path, _ = isolated_store
+    first = data.run("CRS", "smoke", method="scripted", workers=1)
+    folder = tmp_path / "home" / "data" / "CRS" / "smoke" / "scripted"
+    victim = sorted(folder.glob("trajectory_*.npz"))[0]
+    victim.write_bytes(victim.read_bytes()[:100])  # an interrupted or corrupted file
+    second = data.run("CRS", "smoke", method="scripted", workers=1)
+    assert second["made"] == 1 and second["reused"] == first["demos"] - 1
+
+
+def test_bad_names_are_refused_before_anything_runs(isolated_store):
+    from flows import data
+
+    with pytest.raises(ValueError, match="gbto"):
+        data.run("CutRearrange", "smoke", method="magic")
+    with pytest.raises(ConfigError, match="CutRearrange"):
+        data.run("CutRearange", "smoke", method="scripted")
+    with pytest.raises(ConfigError, match="smoke"):
+        data.run("CutRearrange", "tiny", method="scripted")
