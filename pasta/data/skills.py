@@ -22,30 +22,49 @@ Two calls, in this order::
   It does not step or change the environment.
 
 Every motion is planned on a kinematic model of the tool (:class:`_Motion`): an action ``a`` moves
-the tool by ``a * action_scale`` per environment step (env_spec 1.5), so straight segments of
-``n`` equal steps reach their end point exactly (tool-tool collisions, e.g. the spatula resting
-on the cutting board, are not modelled; the scripts only run into them on the last lowering).
-A sequence shorter than ``n_steps`` is padded with zero actions; a longer one is cut off.
+the tool by ``a * action_scale`` per environment step (env_spec 1.5), so a straight segment reaches
+its end point exactly (tool-tool collisions, e.g. the spatula resting on the cutting board, are not
+modelled; the scripts only run into them on the last lowering). Segments that move dough ramp
+their speed up and down so that the dough is not thrown (see ``_braking_steps``). A sequence
+shorter than ``n_steps`` is padded with zero actions; a longer one is cut off.
 
 The skills (tool kind from ``cfg.skills``):
 
 ========== ============ ==================================================================
 skill      tool kind    motion
 ========== ============ ==================================================================
-cut        knife        cut x from the length ratio of the two target pieces (section 3.1),
-                        move above it, descend through the dough below its bottom, slide in
-                        x to push each piece towards its target centre, lift
-push       box          pusher on the far side of the piece at contact height, then along
-                        the line from the piece's centre of mass to the target's
+cut        knife        cut x from the length ratio of the two target pieces (appendix 3.1);
+                        move above it, go down through the dough at half speed to 0.02 below
+                        its bottom, push each piece that must travel towards its target centre
+                        (the left one to -x, the right one to +x), slowing down so the piece
+                        stops with the knife; lift
+push       box          pusher behind the piece at contact height, facing the target; push
+                        along the line between the centres of mass, slowing down at the end
 rearrange  gripper      open, over the piece, lower, close on it, move horizontally to the
                         target centre, open, lift
-spread     rolling pin  press down to the target thickness while rolling back and forth over
-                        the target piece's length (roll action a0; RollingPinExt)
-lift, move box          from under the dough, lift above the board, carry to the target,
-                        lower onto the support there
-gather     gripper      close on the scattered dough around its centre (gap action +), open,
-                        turn 90 degrees if the other axis is still too wide, close again
+spread     rolling pin  press straight down to the target thickness, then roll to and fro
+                        without slipping about the target's centre (roll a0 with slide a3)
+lift, move box          from under the dough, lift (eased) above the board, carry to the
+                        target, lower onto the support there
+gather     gripper      close on the scattered dough to the target's width (gap action +),
+                        open, turn 90 degrees if the other axis is still too wide, close
+                        again, open a little to let go
 ========== ============ ==================================================================
+
+What was measured at the coarse profiles (grid 32 and 48), and shaped these scripts:
+
+* Fast tool motions throw the dough (it slides on after the tool stops; ground friction 0.5), so
+  pushes brake over the steps friction needs, the knife cuts at half speed and the spatula eases.
+* Grid nodes inside a tool leave it at ``sim.tool_expel_rate`` of their depth per substep. With
+  the default 0.1 a spatula lifting dough launches it and then carries it on a cushion without
+  friction, so ``lift`` / ``move`` only work with that rate at 0 (and at grid 48; at grid 32 the
+  0.04-thick spatula also drops the dough when the board is high); a gripper holding dough
+  squeezed squirts it through its fingers, so ``gather`` opens a little at the end.
+* At grid 32 the 0.05-thick knife cannot cut (a piece is launched or stays joined); at grid 48
+  the cut leaves two DBSCAN pieces in the 1000 observation points, provided the knife's mid-plane
+  lies between two grid columns (the cut x is moved to the middle of its grid cell).
+* A rolling pin moving its full span pushes the dough out of the target (RollingPinExt's roll
+  alone moves the pin's bottom at twice the pin's speed); pressing does most of the spreading.
 
 Target pieces are found by DBSCAN (:func:`~pasta.geometry.entities.label_entities`, the task's
 ``cfg.data`` parameters). Pieces the attention leaves out are expected to stay where they are: each
@@ -88,21 +107,28 @@ SKILL_TOOL_KINDS: dict[str, str] = {
 }
 
 CLEARANCE = 0.02  # gap kept between a tool and the dough while approaching
+EXTENT_PERCENTILES = (0.5, 99.5)  # robust extents of point clouds
+MAX_BRAKING_STEPS = 30  # a pushing tool slows down over at most this many steps
+# cut
 KNIFE_CLEARANCE = 0.03  # knife edge above the dough top before a cut (as CutRearrange's default pose)
-CUT_BELOW_BOTTOM = 0.01  # the knife edge goes this far below the dough's bottom
-SEPARATION_TOLERANCE = 0.01  # a piece closer than this to its target centre (in x) is not pushed
+CUT_BELOW_BOTTOM = 0.02  # the knife edge goes this far below the dough's bottom
+CUT_SPEED = 0.5  # fraction of full speed at which the knife goes through the dough (faster flings the halves)
+SEPARATION_TOLERANCE = 0.01  # a piece closer than this (beyond the knife's half thickness) is not pushed
+# push
 PUSH_SINK = 0.005  # the pusher's bottom sits this far below the dough's bottom
+# rearrange, gather
 FINGER_SINK = 0.005  # the gripper fingers' bottom sits this far below the dough's bottom
 GRIP_MARGIN = 0.02  # open fingers keep this much room on each side of the piece
 GRIP_SQUEEZE = 0.7  # a closed grip leaves this fraction of the piece's width between the fingers
+GATHER_SPEED = 0.5  # fraction of full gap speed when squeezing (faster squirts dough through the fingers)
+GATHER_RELEASE = 0.04  # the gripper opens this much at the end of a gather
+GATHER_TOLERANCE = 0.02  # turn and squeeze again when the pile is this much wider than the target
+# lift, move
 SPATULA_CLEARANCE = 0.015  # the carrying spatula's bottom clears the highest support by this
 SPATULA_EASE = 4  # steps over which the spatula speeds up and slows down (the dough must not take off)
+# spread
 ROLL_CLEARANCE = 0.01  # the rolling pin starts this far above the dough
-GATHER_RELEASE = 0.04
-GATHER_SPEED = 0.5
-GATHER_ROTATE = True
-GATHER_TOLERANCE = 0.02  # turn and squeeze again when the pile is this much wider than the target
-EXTENT_PERCENTILES = (0.5, 99.5)  # robust extents of point clouds
+PIN_GAP_CELLS = 1.5  # the rolling pin stops this many grid cells above a static support (the board)
 ROLL_SPAN = 0.2  # the rolling pin rolls over this fraction of the target's half length each side
 ROLL_ONLY_SPEED = 0.15  # roll action of a pin without a slide action (its bottom slips at twice its speed)
 
@@ -153,6 +179,11 @@ def place_tool_for_skill(env: DoughEnv, skill: str, attention: np.ndarray | None
     then cost no steps. Only the push needs ``target_points`` to face the target; the other tools'
     start poses depend on the attended dough alone. No simulation step is taken
     (:meth:`DoughEnv.teleport_tool`).
+
+    Some tools cannot approach the dough by themselves, so their skills need this placement: a
+    rolling pin has no action along its axis, the GatherMove gripper none in y and the spatulas
+    none in z. The others approach within the step budget, at a cost (measured at smoke: push
+    0.88 placed vs -0.02 to 0.58 not placed, rearrange 0.90 vs 0.56).
     """
     skill_cfg = _skill_config(env.cfg, skill)
     pose = start_pose_for_skill(env, skill, attention, target_points)
@@ -282,9 +313,9 @@ def _world_half_y(tool: ToolConfig, rot: Sequence[float]) -> float:
     return float((np.abs(_rotation(rot)) @ np.asarray(tool.half_extents))[1])
 
 
-def _support_y(env: DoughEnv, x: float, z: float) -> float:
-    """Height dough rests at over (x, z): the floor, or the top of a static box (cutting board) there."""
-    y = env.floor_y
+def _support(env: DoughEnv, x: float, z: float) -> tuple[float, bool]:
+    """Height dough rests at over (x, z), and whether that is a static box (cutting board) or the floor."""
+    y, on_tool = env.floor_y, False
     poses = None
     for tool in env.tools:
         if not (tool.static and tool.kind == "box"):
@@ -292,18 +323,29 @@ def _support_y(env: DoughEnv, x: float, z: float) -> float:
         poses = poses or env.tool_poses()
         pose = poses[tool.name]
         lo, hi = tool_world_bounds(tool, pose.pos, pose.rot)
-        if lo[0] <= x <= hi[0] and lo[2] <= z <= hi[2]:
-            y = max(y, float(hi[1]))
-    return y
+        if lo[0] <= x <= hi[0] and lo[2] <= z <= hi[2] and hi[1] > y:
+            y, on_tool = float(hi[1]), True
+    return y, on_tool
 
 
-def _stop_steps(env: DoughEnv, step_distance: float) -> int:
-    """Steps over which a tool pushing dough along the ground at ``step_distance`` per step must slow
-    down so that the dough, braked only by ground friction, keeps up with it instead of sliding on."""
+def _support_y(env: DoughEnv, x: float, z: float) -> float:
+    """Height dough rests at over (x, z): the floor, or the top of a static box (cutting board) there."""
+    return _support(env, x, z)[0]
+
+
+def _braking_steps(env: DoughEnv, distance: float, top_speed: float) -> int:
+    """Steps over which a tool pushing dough along the ground must slow down so that the dough,
+    braked by ground friction alone, keeps up with it instead of sliding on.
+
+    Ground friction takes ``mu |g| T^2`` off the dough's displacement per step every step (``T`` the
+    time of one step). A push of ``distance`` at up to ``top_speed`` per step stops over
+    ``min(top_speed, sqrt(2 distance brake)) / brake`` steps.
+    """
     sim = env.cfg.sim
-    friction = env.cfg.material.ground_friction * abs(sim.gravity_m_s2[1])
-    brake = friction * (sim.dt_s * sim.substeps_per_step) ** 2  # velocity lost per step, per step
-    return 0 if brake <= 0 else min(math.ceil(step_distance / brake), 40)
+    brake = env.cfg.material.ground_friction * abs(sim.gravity_m_s2[1]) * (sim.dt_s * sim.substeps_per_step) ** 2
+    if brake <= 0 or distance <= 0:
+        return 0
+    return min(math.ceil(min(top_speed, math.sqrt(2.0 * distance * brake)) / brake), MAX_BRAKING_STEPS)
 
 
 def _collides(tool: ToolConfig, pose: ToolPose, points: np.ndarray, margin: float = 0.0) -> bool:
@@ -317,7 +359,7 @@ def _collides(tool: ToolConfig, pose: ToolPose, points: np.ndarray, margin: floa
 class _Scene:
     """What the scripts need to know about the dough and the subgoal.
 
-    ``points`` every current dough point, ``attended`` those the skill acts on, ``others`` the rest;
+    ``points`` every current dough point, ``attended`` those the skill acts on;
     ``destinations`` the target pieces the attended dough should become (empty without a target);
     ``bottom`` the height the attended dough rests at; ``top`` its highest point; ``top_all`` the
     highest point of all dough.
@@ -325,7 +367,6 @@ class _Scene:
 
     points: np.ndarray
     attended: np.ndarray
-    others: np.ndarray
     destinations: tuple[np.ndarray, ...]
     bottom: float
     top: float
@@ -361,14 +402,14 @@ def _analyse(env: DoughEnv, skill: SkillConfig, target: np.ndarray | None, atten
             )
         if not mask.any():
             raise ValueError("attention selects no dough")
-    attended, others = points[mask], points[~mask]
+    attended = points[mask]
     destinations: tuple[np.ndarray, ...] = ()
     if target is not None:
         destinations = tuple(_destinations(points, mask, _as_cloud(target, "target_points"), cfg,
                                            skill.entities_out))
     centre = attended.mean(axis=0)
     bottom = min(float(np.percentile(attended[:, 1], 1.0)), _support_y(env, centre[0], centre[2]))
-    return _Scene(points=points, attended=attended, others=others, destinations=destinations, bottom=bottom,
+    return _Scene(points=points, attended=attended, destinations=destinations, bottom=bottom,
                   top=float(attended[:, 1].max()), top_all=float(points[:, 1].max()))
 
 
@@ -406,8 +447,9 @@ class _Motion:
     ``a[:3] * scale`` and turns it by the axis-angle ``a[3:6] * scale`` (box: world frame; gripper:
     body frame); a positive gripper gap action closes by ``a[6] * scale``; a rolling pin rolls by
     ``a0 * scale`` radians about its axis (moving ``radius`` times that across), lifts by
-    ``a2 * scale`` and slides by ``a3 * scale``. Positions are clipped to the tool's bounds and the
-    gap to [min_gap, max_gap], as the engine does.
+    ``a2 * scale`` and slides by ``a3 * scale``. Like the engine, a step is integrated in
+    ``substeps_per_step`` equal parts, each clipping the position to the tool's bounds and the gap to
+    [min_gap, max_gap].
     """
 
     def __init__(self, env: DoughEnv, tool_name: str, n_steps: int):
@@ -418,6 +460,7 @@ class _Motion:
         self.rot = np.asarray(pose.rot, dtype=np.float64)
         self.gap = float(pose.gap)
         self.n_steps = n_steps
+        self.substeps = env.cfg.sim.substeps_per_step
         self.actions: list[np.ndarray] = []
 
     @property
@@ -448,23 +491,24 @@ class _Motion:
         a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
         a[self.scales == 0.0] = 0.0
         self.actions.append(a)
-        d = a * self.scales
+        d = a * self.scales / self.substeps  # the engine spreads a step's motion over its substeps
         kind = self.tool.kind
-        if kind == "rolling_pin":
-            axis = self.R @ np.array([0.0, 0.0, 1.0])
-            direction = np.cross([0.0, 1.0, 0.0], axis)
-            self.pos = self.pos + direction * (d[0] * self.tool.radius + d[3]) + np.array([0.0, d[2], 0.0])
-            self.rot = _quat_mul(_quat_mul(_axis_angle_quat(np.array([0.0, -d[1], 0.0])), self.rot),
-                                 _axis_angle_quat(np.array([0.0, 0.0, d[0]])))
-        else:
-            self.pos = self.pos + d[:3]
-            if kind == "box":
-                self.rot = _quat_mul(_axis_angle_quat(d[3:6]), self.rot)
-            elif kind == "gripper":
-                self.rot = _quat_mul(self.rot, _axis_angle_quat(d[3:6]))
-                self.gap = float(np.clip(self.gap - d[6], self.tool.min_gap, self.tool.max_gap))
-        self.rot = self.rot / np.linalg.norm(self.rot)
-        self.pos = self.clip_pos(self.pos)
+        for _ in range(self.substeps):
+            if kind == "rolling_pin":
+                axis = _rotation(self.rot) @ np.array([0.0, 0.0, 1.0])
+                direction = np.cross([0.0, 1.0, 0.0], axis)
+                self.pos = self.pos + direction * (d[0] * self.tool.radius + d[3]) + np.array([0.0, d[2], 0.0])
+                self.rot = _quat_mul(_quat_mul(_axis_angle_quat(np.array([0.0, -d[1], 0.0])), self.rot),
+                                     _axis_angle_quat(np.array([0.0, 0.0, d[0]])))
+            else:
+                self.pos = self.pos + d[:3]
+                if kind == "box":
+                    self.rot = _quat_mul(_axis_angle_quat(d[3:6]), self.rot)
+                elif kind == "gripper":
+                    self.rot = _quat_mul(self.rot, _axis_angle_quat(d[3:6]))
+                    self.gap = float(np.clip(self.gap - d[6], self.tool.min_gap, self.tool.max_gap))
+            self.rot = self.rot / np.linalg.norm(self.rot)
+            self.pos = self.clip_pos(self.pos)
         return True
 
     def wait(self, n: int) -> None:
@@ -554,27 +598,41 @@ def _cut_start(env: DoughEnv, tool_name: str, scene: _Scene) -> ToolPose:
 
 
 def _cut(env: DoughEnv, m: _Motion, scene: _Scene) -> None:
+    """Above the cut x, down through the dough at ``CUT_SPEED`` to ``CUT_BELOW_BOTTOM`` under its
+    bottom, push the piece(s) that must travel towards their target centres, lift."""
     tool = m.tool
     cut_x, pieces = _cut_plan(scene)
+    # Cut in the middle of a grid cell: with a grid column on the knife's mid-plane, the direction
+    # in which the simulator expels the dough there is arbitrary, and the whole dough drifts
+    # (measured at grid 48: cuts on a column lost 0.3-0.75 of the EMD, cuts between gained 0.4-0.6).
+    dx = 1.0 / env.cfg.sim.n_grid
+    cut_x = (math.floor(cut_x / dx) + 0.5) * dx
     safe_y = max(_knife_safe_y(tool, scene), m.pos[1])
-    edge = m.pos[1] - tool.blade_depth
-    if abs(m.pos[0] - cut_x) > 1e-3 and edge < scene.top_all + 0.005:
+    if abs(m.pos[0] - cut_x) > 1e-3 and m.pos[1] - tool.blade_depth < scene.top_all + 0.005:
         m.move(pos=(m.pos[0], safe_y, m.pos[2]))  # lift clear before moving across
     m.move(pos=(cut_x, m.pos[1], m.pos[2]))
     cut_y = scene.bottom - CUT_BELOW_BOTTOM + tool.blade_depth
-    m.move(pos=(cut_x, cut_y, m.pos[2]))
+    touch_y = scene.top + tool.blade_depth + 0.005  # the edge just above the dough
+    if m.pos[1] > touch_y:
+        m.move(pos=(cut_x, max(touch_y, cut_y), m.pos[2]))
+    m.move(pos=(cut_x, cut_y, m.pos[2]), speed=CUT_SPEED)
     if pieces:
         a = scene.attended
         left, right = a[a[:, 0] <= cut_x], a[a[:, 0] > cut_x]
         shift_left = float(pieces[0][:, 0].mean() - left[:, 0].mean()) if len(left) else 0.0
         shift_right = float(pieces[1][:, 0].mean() - right[:, 0].mean()) if len(right) else 0.0
-        # The knife can only push (left piece to -x, right piece to +x); it slows down gently so the
-        # piece stops with it.
-        stop = _stop_steps(env, tool.action_scales[0])
-        if shift_left < -SEPARATION_TOLERANCE:
-            m.move(pos=(cut_x + shift_left, cut_y, m.pos[2]), ease=2, ease_out=stop)
-        if shift_right > SEPARATION_TOLERANCE:
-            m.move(pos=(cut_x + shift_right, cut_y, m.pos[2]), ease=2, ease_out=stop)
+        # The knife can only push (left piece to -x, right piece to +x). Its faces are half its
+        # thickness from its centre, so going down already moved each cut face by that much. It
+        # slows down gently so that the pushed piece stops with it instead of sliding on.
+        half, speed = tool.half_extents[0], tool.action_scales[0]
+        pushes = []
+        if shift_left < -(half + SEPARATION_TOLERANCE):
+            pushes.append(shift_left + half)
+        if shift_right > half + SEPARATION_TOLERANCE:
+            pushes.append(shift_right - half)
+        for push in pushes:
+            m.move(pos=(cut_x + push, cut_y, m.pos[2]), ease=2,
+                   ease_out=_braking_steps(env, abs(cut_x + push - m.pos[0]), speed))
     m.move(pos=(m.pos[0], safe_y, m.pos[2]))
 
 
@@ -635,6 +693,8 @@ def _push_start(env: DoughEnv, tool_name: str, scene: _Scene) -> ToolPose:
 
 
 def _push(env: DoughEnv, m: _Motion, scene: _Scene) -> None:
+    """From behind the piece (approaching over the dough if the pusher is elsewhere) push along the
+    line between the centres of mass until the piece's centre is at the target's; brake at the end."""
     tool = m.tool
     line = _push_line(tool, scene, None, yaw=m.yaw)
     if line is None:
@@ -644,15 +704,20 @@ def _push(env: DoughEnv, m: _Motion, scene: _Scene) -> None:
     across = float(np.linalg.norm(rel - along * line.direction - rel[1] * np.array([0.0, 1.0, 0.0])))
     hx, hy, hz = tool.half_extents
     behind = along < -line.back - 0.5 * hx and across < 0.5 * hz and abs(m.pos[1] - line.start[1]) < 0.02
-    if not behind:  # approach: up, over the start (turning to face the target), down
-        line = _push_line(tool, scene, None)
+    if not behind:  # approach: up, over the start (turning towards the target meanwhile), down
         safe_y = scene.top_all + _world_half_y(tool, m.rot) + CLEARANCE
         if m.pos[1] < safe_y:
             m.move(pos=(m.pos[0], safe_y, m.pos[2]))
-        m.move(pos=(line.start[0], safe_y, line.start[2]), yaw=line.yaw)
+        aligned = _push_line(tool, scene, None)
+        travel = np.abs((aligned.start - m.pos)[[0, 2]]) / np.maximum(m.scales[[0, 2]], 1e-9)
+        max_turn = math.ceil(float(travel.max())) * m.scales[4]  # turn only while travelling
+        turn = float(np.clip(_half_plate_turn(aligned.yaw - m.yaw), -max_turn, max_turn))
+        line = _push_line(tool, scene, None, yaw=m.yaw + turn)
+        m.move(pos=(line.start[0], safe_y, line.start[2]), yaw=m.yaw + turn)
         m.move(pos=line.start)
         line = _push_line(tool, scene, None, yaw=m.yaw)
-    m.move(pos=line.end)
+    distance = float(np.linalg.norm((line.end - m.pos)[[0, 2]]))
+    m.move(pos=line.end, ease=2, ease_out=_braking_steps(env, distance, max(tool.action_scales[:3])))
 
 
 def _gripper_frame(m_rot) -> tuple[np.ndarray, np.ndarray]:
@@ -709,6 +774,8 @@ def _gripper_approach(m: _Motion, scene: _Scene, open_gap: float, grip_y: float,
 
 
 def _rearrange(env: DoughEnv, m: _Motion, scene: _Scene) -> None:
+    """Straddle the piece (approach if needed), close to ``GRIP_SQUEEZE`` of its width, move the
+    piece's centre to the target's horizontally, open, lift."""
     goal = scene.destination
     open_gap, grip_gap, grip_y, safe_y = _grip_geometry(m.tool, m.rot, scene)
     _gripper_approach(m, scene, open_gap, grip_y, safe_y)
@@ -751,6 +818,12 @@ def _spread(env: DoughEnv, m: _Motion, scene: _Scene) -> None:
     goal = scene.destination if scene.destination is not None else scene.attended
     g_lo, g_hi = _extent(goal[:, 1])
     press_y = max(scene.bottom + max(g_hi - g_lo, 1e-3) + r, tool.lower_bound[1])
+    centre = scene.centre
+    support, on_tool = _support(env, centre[0], centre[2])
+    if on_tool:
+        # Dough squeezed into less than a grid cell between the pin and a static tool (the
+        # cutting board) is thrown out of the gap, and the simulation can blow up.
+        press_y = max(press_y, support + PIN_GAP_CELLS / env.cfg.sim.n_grid + r)
     origin = m.pos.copy()
     s_lo, s_hi = _extent((goal - origin) @ direction)
     mid, half = 0.5 * (s_lo + s_hi), 0.5 * (s_hi - s_lo)
@@ -812,12 +885,16 @@ def _spatula_start(env: DoughEnv, tool_name: str, scene: _Scene) -> ToolPose:
 
 
 def _lift(env: DoughEnv, m: _Motion, scene: _Scene) -> None:
+    """From under the dough (sliding in at floor level first if needed), lift above every support on
+    the way, carry to the target's centre, lower onto the support there; every motion eased."""
     tool = m.tool
     goal = scene.destination
     goal_centre = goal.mean(axis=0) if goal is not None else None
     under, carry, rest = _spatula_heights(env, tool, m.rot, scene, goal_centre)
     centre = scene.centre
-    below = np.linalg.norm((m.pos - centre)[[0, 2]][m.scales[[0, 2]] > 0]) < 0.02 and abs(m.pos[1] - under) < 0.02
+    # Already under the dough (at most a little lower than ``under``): lifting picks it up.
+    below = (np.linalg.norm((m.pos - centre)[[0, 2]]) < 0.02
+             and under - CLEARANCE - 0.05 <= m.pos[1] <= under + 0.005)
     if not below:  # slide in under the dough from the side the spatula is on, at floor level
         side = 1.0 if m.pos[0] >= centre[0] else -1.0
         half_x = float((np.abs(m.R) @ np.asarray(tool.half_extents))[0])
@@ -836,11 +913,11 @@ def _lift(env: DoughEnv, m: _Motion, scene: _Scene) -> None:
         m.move(pos=(m.pos[0], rest, m.pos[2]), ease=SPATULA_EASE)
 
 
-def _gather_start(env: DoughEnv, tool_name: str, scene: _Scene) -> ToolPose:
-    return _gripper_start(env, tool_name, scene)
-
-
 def _gather(env: DoughEnv, m: _Motion, scene: _Scene) -> None:
+    """Squeeze along the gap axis to the target's width, then (if the pile is still wider than the
+    target across) open around the pile, turn 90 degrees and squeeze across; finally let go a little.
+    Squeezing runs at ``GATHER_SPEED``: faster, or holding the squeeze, squirts dough through the fingers.
+    """
     tool = m.tool
     centre = scene.centre
     goal = scene.destination if scene.destination is not None else scene.attended
@@ -859,7 +936,7 @@ def _gather(env: DoughEnv, m: _Motion, scene: _Scene) -> None:
         q1 = np.minimum(np.abs(rel @ axis), 0.5 * target_along)
         radius = float(np.percentile(np.hypot(q1, rel @ across), EXTENT_PERCENTILES[1]))
         m.move(gap=2.0 * (radius + 0.5 * thick + GRIP_MARGIN))
-        if GATHER_ROTATE and m.turn_about_vertical(0.5 * math.pi):
+        if m.turn_about_vertical(0.5 * math.pi):
             m.move(gap=target_across + thick, speed=GATHER_SPEED)
     if GATHER_RELEASE:
         m.move(gap=m.gap + GATHER_RELEASE)
@@ -882,5 +959,5 @@ _START_POSES: dict[str, Callable[[DoughEnv, str, _Scene], ToolPose]] = {
     "spread": _spread_start,
     "lift": _spatula_start,
     "move": _spatula_start,
-    "gather": _gather_start,
+    "gather": _gripper_start,
 }

@@ -1,0 +1,130 @@
+"""Set point-cloud policy ``pi_k(P^obs, P^tool, P^goal)`` (appendix §1.4, model_spec §4).
+
+The observation, tool and goal clouds are concatenated into one cloud, each point tagged with a one-hot
+role (observation ``[1, 0, 0]``, tool ``[0, 1, 0]``, goal ``[0, 0, 1]``), encoded by the PointNet++ of
+``pasta.models.pointnet`` (1024-d) and mapped to an action by an MLP ``1024 -> 512 -> 256 -> action_dim``.
+
+The action output is **linear** (then multiplied by ``output_scale`` = 1/5, the official "good
+initialisation" trick), not tanh: demonstration actions are clamped to [-1, 1] and many sit exactly on
+the bounds, which a tanh reaches only asymptotically and with vanishing gradient; the environment clips
+actions to [-1, 1] anyway (model_spec §0.1, §4.3).
+
+Also here: the uniform point noise used in training, and the entity filtering of appendix §1.5.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import torch
+from torch import nn
+
+from pasta.geometry.distances import chamfer_distance
+from pasta.models.layers import mlp, orthogonal_init_
+from pasta.models.pointnet import PointNetPlusPlusConfig, PointNetPlusPlusEncoder
+
+__all__ = [
+    "FilteredEntities",
+    "PolicyConfig",
+    "SetPolicy",
+    "filter_entities",
+    "tag_point_roles",
+    "uniform_point_noise",
+]
+
+
+def tag_point_roles(*clouds: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Concatenate clouds ``(B, N_i, 3)`` and tag each point with the one-hot index of its cloud.
+
+    Returns:
+        ``points (B, sum N_i, 3)`` and ``features (B, sum N_i, len(clouds))``.
+    """
+    if not clouds:
+        raise ValueError("need at least one cloud")
+    for i, cloud in enumerate(clouds):
+        if cloud.ndim != 3 or cloud.shape[-1] != 3 or cloud.shape[0] != clouds[0].shape[0]:
+            raise ValueError(f"cloud {i} must have shape ({clouds[0].shape[0]}, N, 3), got {tuple(cloud.shape)}")
+    eye = torch.eye(len(clouds), dtype=clouds[0].dtype, device=clouds[0].device)
+    features = [eye[i].expand(c.shape[0], c.shape[1], -1) for i, c in enumerate(clouds)]
+    return torch.cat(clouds, dim=1), torch.cat(features, dim=1)
+
+
+def uniform_point_noise(points: torch.Tensor, amplitude: float, generator: torch.Generator | None) -> torch.Tensor:
+    """``points + U(-amplitude, amplitude)`` per coordinate (official ``obs_noise`` = 0.005, uniform)."""
+    unit = torch.rand(points.shape, generator=generator, dtype=points.dtype, device=points.device)
+    return points + amplitude * (2.0 * unit - 1.0)
+
+
+class FilteredEntities(NamedTuple):
+    """Entities left after filtering, and boolean keep masks over the inputs ``(K_o,)``, ``(K_g,)``."""
+
+    obs: torch.Tensor
+    goal: torch.Tensor
+    obs_keep: torch.Tensor
+    goal_keep: torch.Tensor
+
+
+def filter_entities(obs_entities: torch.Tensor, goal_entities: torch.Tensor, epsilon: float) -> FilteredEntities:
+    """Drop entities that are already at their goal: any observation or goal entity that takes part in a pair
+    with Chamfer distance strictly below ``epsilon`` (appendix §1.5; official ``match_set``, model_spec §0.4).
+
+    Args:
+        obs_entities: ``(K_o, N, 3)`` observation entities.
+        goal_entities: ``(K_g, M, 3)`` goal entities.
+        epsilon: threshold in ``chamfer_distance`` units (squared; official 5e-4 on 200-point subsamples,
+            subsample before calling to match it). 0 filters nothing.
+
+    Returns:
+        ``FilteredEntities``; kept entities keep their order.
+    """
+    n_obs, n_goal = obs_entities.shape[0], goal_entities.shape[0]
+    if n_obs == 0 or n_goal == 0 or epsilon <= 0:
+        return FilteredEntities(
+            obs_entities,
+            goal_entities,
+            torch.ones(n_obs, dtype=torch.bool, device=obs_entities.device),
+            torch.ones(n_goal, dtype=torch.bool, device=goal_entities.device),
+        )
+    with torch.no_grad():
+        a = obs_entities.repeat_interleave(n_goal, dim=0)
+        b = goal_entities.repeat(n_obs, 1, 1)
+        close = (chamfer_distance(a, b) < epsilon).view(n_obs, n_goal)
+    obs_keep, goal_keep = ~close.any(dim=1), ~close.any(dim=0)
+    return FilteredEntities(obs_entities[obs_keep], goal_entities[goal_keep], obs_keep, goal_keep)
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """Set-policy hyper-parameters.
+
+    Attributes:
+        encoder: the PointNet++ (``in_features`` = 3 roles).
+        head_channels: hidden widths of the action MLP after the encoder (``[512, 256]``).
+        output_scale: the linear output is multiplied by this (official 1/5).
+    """
+
+    encoder: PointNetPlusPlusConfig = field(default_factory=PointNetPlusPlusConfig)
+    head_channels: tuple[int, ...] = (512, 256)
+    output_scale: float = 0.2
+
+
+class SetPolicy(nn.Module):
+    """``(obs (B, N_o, 3), tool (B, N_t, 3), goal (B, N_g, 3))`` -> action ``(B, action_dim)``.
+
+    Orthogonal initialisation of the action head (official ``weight_init``); the encoder keeps torch's.
+    """
+
+    def __init__(self, action_dim: int, config: PolicyConfig = PolicyConfig()) -> None:
+        super().__init__()
+        if config.encoder.in_features != 3:
+            raise ValueError(f"the set policy tags 3 point roles, got encoder in_features {config.encoder.in_features}")
+        self.config = config
+        self.action_dim = action_dim
+        self.encoder = PointNetPlusPlusEncoder(config.encoder)
+        self.head = mlp((config.encoder.out_dim, *config.head_channels, action_dim), final_activation=False)
+        orthogonal_init_(self.head)
+
+    def forward(self, obs_points: torch.Tensor, tool_points: torch.Tensor, goal_points: torch.Tensor) -> torch.Tensor:
+        points, roles = tag_point_roles(obs_points, tool_points, goal_points)
+        return self.head(self.encoder(points, roles)) * self.config.output_scale

@@ -1,0 +1,280 @@
+"""Scripted skills: each one, run open loop from a default configuration towards a synthetic
+subgoal, brings the dough closer to it (normalised improvement of the exact EMD between the 1000
+observation points and 1000 target points).
+
+Problems are built here from ``default_configuration`` (or the generator's single-piece layout)
+plus a rigidly moved / flattened / gathered target, as in env_spec 2. The thresholds sit well
+below what was measured (seed 0; seeds 1 and 2 in brackets):
+
+=============  ===========  ======================  ===========================
+task           skill        profile                 measured
+=============  ===========  ======================  ===========================
+CutRearrange   rearrange    smoke                   0.90 (0.84, 0.91)
+CRS            push         smoke                   0.88 (0.92, 0.92)
+CRS            spread       smoke                   0.60 (0.62, 0.63)
+LiftSpread     lift         smoke, expel rate 0     0.86 (0.85, 0.86)
+GatherMove     gather       small                   0.58 (0.47, 0.54)
+CutRearrange   cut          small                   0.33 (0.36, 0.38), 2 pieces
+=============  ===========  ======================  ===========================
+
+Why not everything at smoke: at grid 32 the 0.05-thick knife cannot cut (a piece is launched or
+the halves stay joined), and the scattered GatherMove dough is a sub-cell layer that squirts
+through the 0.03-thick fingers (-1.0 to +0.4 depending on the seed). Why the lift runs with
+``sim.tool_expel_rate = 0``: with the default 0.1 a rising spatula launches the dough and then
+carries it on a frictionless cushion, so it is never carried (improvement about 0).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pasta.config import load
+from pasta.config.schema import TASK_NAMES
+from pasta.data import skills
+from pasta.data.skills import available_skills, place_tool_for_skill, scripted_actions, skill_tool
+from pasta.geometry.distances import earth_movers_distance
+from pasta.geometry.entities import label_entities
+from pasta.sim.envs import DoughConfiguration, DoughEnv, default_configuration, make_env
+from pasta.sim.envs.base import build_configuration
+from pasta.sim.shapes import BoxPiece, sample_box
+
+_ENVS: dict[tuple, DoughEnv] = {}
+
+
+def env_for(task: str, profile: str = "smoke", overrides: dict | None = None) -> DoughEnv:
+    """One environment per (task, profile, overrides) for the whole module (compiling takes seconds)."""
+    key = (task, profile, tuple(sorted((overrides or {}).items())))
+    if key not in _ENVS:
+        _ENVS[key] = make_env(load(task, profile, overrides))
+    return _ENVS[key]
+
+
+def settled(env: DoughEnv, configuration: DoughConfiguration) -> np.ndarray:
+    """Reset, let the dough settle (cfg.sim.settle_steps, as a demo does), return the observation points."""
+    env.reset(configuration)
+    return env.settle().dough_points.copy()
+
+
+def shape_distance(env: DoughEnv, target: np.ndarray) -> float:
+    return earth_movers_distance(env.observation().dough_points, target[:1000])
+
+
+def run_skill(env: DoughEnv, skill: str, target: np.ndarray, attention=None, place: bool = True) -> float:
+    """Place the tool, execute the scripted actions, check them; returns the normalised improvement."""
+    if place:
+        place_tool_for_skill(env, skill, attention, target)
+    before = shape_distance(env, target)
+    actions = scripted_actions(env, skill, target, attention)
+    check_actions(env, skill, actions)
+    for action in actions:
+        env.step(action)
+    return (before - shape_distance(env, target)) / before
+
+
+def check_actions(env: DoughEnv, skill: str, actions: np.ndarray) -> None:
+    cfg = env.cfg
+    assert actions.shape == (cfg.sim.steps_per_skill, env.action_dim)
+    assert actions.dtype == np.float32
+    assert np.isfinite(actions).all() and np.abs(actions).max() <= 1.0
+    tool = skill_tool(cfg, skill)
+    inside = np.zeros(env.action_dim, bool)
+    inside[env.tool_action_slice(tool.name)] = True
+    assert not actions[:, ~inside].any(), "an action moves a tool the skill does not use"
+    assert np.abs(actions[:, inside]).sum() > 0, "the skill does nothing"
+    scales = np.asarray(tool.action_scales)
+    assert not actions[:, inside][:, scales == 0].any(), "an action drives a dimension without a scale"
+
+
+# ------------------------------------------------------------------- problems
+def rearrange_problem(seed: int = 0):
+    """CutRearrange after a cut (the x <= 0.5 half slid 0.1 to -x): move that piece 0.3 in z, -0.05 in x."""
+    env = env_for("CutRearrange")
+    conf = default_configuration(env.cfg, np.random.default_rng(seed))
+    x = conf.particles.copy()
+    x[x[:, 0] <= 0.5, 0] -= 0.1
+    obs = settled(env, DoughConfiguration(particles=x, tool_poses=conf.tool_poses))
+    attention = env.particles()[:, 0] < 0.45
+    target = obs.copy()
+    moved = target[:, 0] < 0.45
+    target[moved] += (-0.05, 0.0, 0.3)
+    return env, target, attention
+
+
+def push_problem(seed: int = 0):
+    """CRS after a cut (the left 0.11 slid 0.1 to -x): push the left piece to x = 0.28, 0.1 towards z = 0.5."""
+    env = env_for("CRS")
+    conf = default_configuration(env.cfg, np.random.default_rng(seed))
+    x = conf.particles.copy()
+    cut = x[:, 0].min() + 0.11
+    x[x[:, 0] <= cut, 0] -= 0.1
+    obs = settled(env, DoughConfiguration(particles=x, tool_poses=conf.tool_poses))
+    attention = env.particles()[:, 0] < cut - 0.05
+    target = obs.copy()
+    moved = target[:, 0] < cut - 0.05
+    centre = target[moved].mean(axis=0)
+    target[moved] += (0.28 - centre[0], 0.0, 0.1 if centre[2] < 0.5 else -0.1)
+    return env, target, attention
+
+
+def spread_problem(seed: int = 0, height: float = 0.017):
+    """CRS spread (generator ids 400-599): a 0.11 x 0.08 x 0.07 box at x = 0.27 flattened to a
+    volume-preserving box of the given height and z-width 0.13."""
+    env = env_for("CRS")
+    rng = np.random.default_rng(seed)
+    size = np.array([0.11, 0.08, 0.07])
+    centre = (0.27, env.floor_y + 0.04, 0.5)
+    settled(env, build_configuration(env.cfg, rng, [BoxPiece(centre=centre, half_extents=tuple(size / 2))]))
+    length = float(np.prod(size)) / (height * 0.13)
+    target = sample_box(rng, 1000, (0.27, env.floor_y + height / 2, 0.5), (length / 2, height / 2, 0.065))
+    return env, target, None
+
+
+def lift_problem(seed: int = 0):
+    """LiftSpread: the ball on the table, moved onto the cutting board at x = 0.35."""
+    env = env_for("LiftSpread", overrides={"sim.tool_expel_rate": 0.0})
+    obs = settled(env, default_configuration(env.cfg, np.random.default_rng(seed)))
+    board = env.tool("board")
+    top = board.position[1] + board.half_extents[1]
+    target = obs + (0.35 - obs[:, 0].mean(), top - obs[:, 1].min(), 0.0)
+    return env, target, None
+
+
+def gather_problem(seed: int = 0, half: float = 0.03):
+    """GatherMove: the scattered dough gathered into a 0.06 x 0.03 x 0.06 pile at its centre."""
+    env = env_for("GatherMove", "small")
+    settled(env, default_configuration(env.cfg, np.random.default_rng(seed)))
+    centre = env.particles().mean(axis=0)
+    target = sample_box(np.random.default_rng(seed), 1000, (centre[0], env.floor_y + half / 2, centre[2]),
+                        (half, half / 2, half))
+    return env, target, None
+
+
+def cut_problem(profile: str, seed: int = 0):
+    """CutRearrange: the whole dough cut at x = 0.49 and the left piece slid 0.1 to -x (env_spec 2.3)."""
+    env = env_for("CutRearrange", profile)
+    obs = settled(env, default_configuration(env.cfg, np.random.default_rng(seed)))
+    target = obs.copy()
+    target[target[:, 0] <= 0.49, 0] -= 0.1
+    return env, target, None
+
+
+# ---------------------------------------------------------------------- tests
+@pytest.mark.parametrize("task", TASK_NAMES)
+def test_every_configured_skill_has_a_script_for_its_tool(task):
+    cfg = load(task, "smoke")
+    assert available_skills(cfg) == tuple(s.name for s in cfg.skills)
+    for skill in cfg.skills:
+        assert skill_tool(cfg, skill.name).name == skill.tool
+        assert skill_tool(cfg, skill.name).kind == skills.SKILL_TOOL_KINDS[skill.name]
+
+
+def test_bad_requests_are_refused():
+    env, target, attention = rearrange_problem()
+    with pytest.raises(ValueError, match="no skill 'spread'"):
+        scripted_actions(env, "spread", target)
+    with pytest.raises(ValueError, match="attention has 7 values"):
+        scripted_actions(env, "rearrange", target, np.ones(7, bool))
+    with pytest.raises(ValueError, match="selects no dough"):
+        scripted_actions(env, "rearrange", target, np.zeros(env.n_particles, bool))
+    with pytest.raises(ValueError, match="shape"):
+        scripted_actions(env, "rearrange", target[:, :2], attention)
+    with pytest.raises(ValueError, match="n_steps"):
+        scripted_actions(env, "rearrange", target, attention, n_steps=0)
+
+
+def test_planning_reads_the_environment_and_placing_only_moves_the_tool():
+    env, target, attention = rearrange_problem()
+    before = env.get_state()
+    actions = scripted_actions(env, "rearrange", target, attention, n_steps=7)
+    assert actions.shape == (7, env.action_dim)  # a shorter budget is respected
+    after = env.get_state()
+    for key in ("x", "v", "tool_pos", "tool_gap", "step"):
+        np.testing.assert_array_equal(after[key], before[key], err_msg=key)
+    pose = place_tool_for_skill(env, "rearrange", attention, target)
+    np.testing.assert_array_equal(env.particles(), before["x"])
+    piece = env.particles()[attention]
+    np.testing.assert_allclose(pose.pos[0], piece[:, 0].mean(), atol=1e-3)  # straddles the piece
+    np.testing.assert_allclose(pose.pos[2], piece[:, 2].mean(), atol=1e-3)
+    finger_inner = pose.gap - 2 * env.tool("gripper").half_extents[0]
+    assert finger_inner > np.ptp(piece[:, 2])  # open around it
+
+
+@pytest.mark.parametrize(("task", "tool"), [("CRS", "knife"), ("CRS", "pusher"), ("CRS", "roller"),
+                                            ("CutRearrange", "gripper")])
+def test_kinematic_model_matches_the_simulated_tool(task, tool):
+    """Away from the dough, the planner's tool model ends exactly where the simulator puts the tool."""
+    env = env_for(task)
+    env.reset(default_configuration(env.cfg, np.random.default_rng(0)))
+    start = env.tool_poses()[tool]
+    env.teleport_tool(tool, (0.5, 0.7, 0.5), gap=start.gap)
+    model = skills._Motion(env, tool, 6)
+    rng = np.random.default_rng(1)
+    for _ in range(6):
+        tool_action = rng.uniform(-1, 1, len(model.scales))
+        model.step(tool_action)
+        env.step(env.action_for(tool, tool_action))
+    pose = env.tool_poses()[tool]
+    np.testing.assert_allclose(pose.pos, model.pos, atol=2e-5)
+    assert abs(abs(float(np.dot(pose.rot, model.rot))) - 1.0) < 1e-5
+    assert pose.gap == pytest.approx(model.gap, abs=2e-5)
+
+
+def test_rearrange_moves_the_attended_piece_to_its_target():
+    env, target, attention = rearrange_problem()
+    improvement = run_skill(env, "rearrange", target, attention)
+    assert improvement > 0.6, improvement
+    labels = label_entities(env.observation().dough_points)
+    assert len(np.unique(labels)) == 2  # still two pieces
+
+
+def test_push_moves_the_attended_piece_along_the_line_to_its_target():
+    env, target, attention = push_problem()
+    improvement = run_skill(env, "push", target, attention)
+    assert improvement > 0.6, improvement
+
+
+def test_push_placed_without_a_target_starts_on_the_plus_x_side():
+    """demos.py places the tool before it knows the target: the pusher waits on the +x side (env_spec 2.5)."""
+    env, target, attention = push_problem()
+    pose = place_tool_for_skill(env, "push", attention)
+    piece = env.particles()[attention]
+    assert pose.pos[0] > piece[:, 0].max()
+    assert abs(pose.pos[2] - piece[:, 2].mean()) < 1e-3
+    improvement = run_skill(env, "push", target, attention, place=False)
+    assert improvement > 0.5, improvement
+
+
+def test_spread_flattens_the_dough_towards_the_target():
+    env, target, _ = spread_problem()
+    improvement = run_skill(env, "spread", target)
+    assert improvement > 0.4, improvement
+    assert np.percentile(env.particles()[:, 1], 99) < env.floor_y + 0.06  # the 0.08 dough is lower
+
+
+def test_lift_carries_the_ball_onto_the_board():
+    env, target, _ = lift_problem()
+    improvement = run_skill(env, "lift", target)
+    assert improvement > 0.6, improvement
+    x = env.particles()
+    assert np.median(x[:, 0]) < 0.5  # over the board (x in [0.1, 0.5])
+
+
+def test_gather_squeezes_the_scattered_dough_into_a_pile():
+    env, target, _ = gather_problem()
+    spread_before = np.ptp(env.particles()[:, [0, 2]], axis=0)
+    improvement = run_skill(env, "gather", target)
+    assert improvement > 0.3, improvement
+    x = env.observation().dough_points
+    spread_after = np.percentile(x[:, [0, 2]], 95, axis=0) - np.percentile(x[:, [0, 2]], 5, axis=0)
+    assert (spread_after < 0.8 * spread_before).all()
+
+
+def test_cut_at_the_small_grid_leaves_two_pieces_near_their_targets():
+    env, target, _ = cut_problem("small")
+    improvement = run_skill(env, "cut", target)
+    assert improvement > 0.2, improvement
+    cfg = env.cfg
+    labels = label_entities(env.observation().dough_points, eps=cfg.data.dbscan_eps,
+                            min_samples=cfg.data.dbscan_min_samples, min_points=cfg.data.dbscan_min_points)
+    assert len(np.unique(labels)) == 2
