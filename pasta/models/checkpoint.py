@@ -8,9 +8,7 @@ config must be plain data (dicts, lists, tuples, strings, numbers, booleans, ``N
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +16,8 @@ from typing import Any
 
 import torch
 from torch import nn
+
+from pasta.data.storage import atomic_write_bytes
 
 __all__ = ["CHECKPOINT_FORMAT", "Checkpoint", "load_checkpoint", "restore_models", "save_checkpoint"]
 
@@ -62,17 +62,7 @@ def save_checkpoint(
         "epoch": int(epoch),
         "config": dict(config_dict),
     }
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{destination.name}.", suffix=".tmp", dir=destination.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            torch.save(payload, handle)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp_name, destination)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp_name)
-        raise
+    atomic_write_bytes(destination, lambda handle: torch.save(payload, handle))
     return destination
 
 
