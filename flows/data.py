@@ -20,7 +20,6 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-from pasta.data.configurations import generate_skill_problems, skill_problem, split_problems
 from prefect import flow, task
 from prefect.task_runners import ProcessPoolTaskRunner, TaskRunner
 from rich.progress import Progress
@@ -28,6 +27,7 @@ from rich.progress import Progress
 from pasta import tracking
 from pasta.config import load
 from pasta.config.schema import TaskConfig
+from pasta.data.configurations import generate_skill_problems, skill_problem, split_problems
 from pasta.data.demos import DemoResult, check_method, generate_demo
 from pasta.data.storage import DatasetError, DatasetIndex, read_trajectory
 from pasta.paths import data_dir
