@@ -1,5 +1,5 @@
 # Each target is a one-liner; read the script it calls for details.
-.PHONY: setup test demo bench lint
+.PHONY: setup test demo bench lint ui report
 
 setup:
 	bash scripts/setup.sh
@@ -15,3 +15,10 @@ bench: setup
 
 lint:
 	.venv/bin/ruff check pasta flows tests benchmarks
+
+# The MLflow UI on this project's store (or $MLFLOW_TRACKING_URI): http://127.0.0.1:5000
+ui: setup
+	.venv/bin/mlflow ui --backend-store-uri $${MLFLOW_TRACKING_URI:-sqlite:///$(CURDIR)/mlflow.db} --port 5000
+
+report: setup
+	.venv/bin/pasta report

@@ -13,7 +13,10 @@ of sample initial/target pairs.
 
 import json
 import os
+import subprocess
+import sys
 import tempfile
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -54,12 +57,23 @@ def existing_result(path: Path) -> dict | None:
 @task(task_run_name="demo-{task_name}-{trajectory_id}")
 def make_demo(task_name: str, profile: str, overrides: tuple[str, ...], trajectory_id: int, method: str,
               out_dir: str, seed: int) -> dict:
-    """Make one demo (in a worker process) unless its file already exists; returns its metadata."""
+    """Make one demo (in a worker process) unless its file already exists; returns its metadata.
+
+    Taichi must own a process's main thread; where tasks run in a worker thread (a Dask worker), the
+    demo is made by a child ``python -m flows.data`` process and its metadata read back from the file.
+    """
     cfg = load(task_name, profile, list(overrides))
     path = Path(out_dir) / f"trajectory_{trajectory_id:06d}.npz"
     done = existing_result(path)
     if done is not None:
         return {**done, "reused": True}
+    if threading.current_thread() is not threading.main_thread():
+        arguments = [task_name, profile, list(overrides), trajectory_id, method, out_dir, seed]
+        subprocess.run([sys.executable, "-m", "flows.data", json.dumps(arguments)], check=True)
+        made = existing_result(path)
+        if made is None:
+            raise RuntimeError(f"the demo process for {task_name} trajectory {trajectory_id} wrote no {path}")
+        return {**made, "path": str(path), "reused": False}
     result: DemoResult = generate_demo(cfg, skill_problem(cfg, trajectory_id, seed), trajectory_id, method,
                                        Path(out_dir), seed=seed)
     record = asdict(result)
@@ -207,3 +221,8 @@ def run(task_name: str, profile: str = "smoke", method: str = "gbto", workers: i
     load(task_name, profile, list(overrides))  # refuse a bad task/profile/override before starting Prefect
     runner = task_runner(workers, dask_address)
     return generate_data.with_options(task_runner=runner)(task_name, profile, method, tuple(overrides), seed)
+
+
+if __name__ == "__main__":  # one demo in this process's main thread (see make_demo)
+    name, prof, over, trajectory, how, folder, demo_seed = json.loads(sys.argv[1])
+    make_demo.fn(name, prof, tuple(over), trajectory, how, folder, demo_seed)

@@ -2,6 +2,9 @@
 
     pasta config --task CutRearrange --profile smoke [--set sim.n_grid=40 ...]
     pasta sim-demo --task CutRearrange [--profile smoke] [--out DIR]
+    pasta train --task CutRearrange [--profile smoke] [--variant pasta] [--method gbto|scripted]
+    pasta report [--task CutRearrange]
+    pasta evaluate --task CutRearrange [--profile smoke] [--variant pasta] [--executor scripted] [--seeds 0 1 2]
 
 Each subcommand imports what it needs (the simulator, torch, ...) only when it runs.
 """
@@ -53,6 +56,78 @@ def _cmd_data(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train(args: argparse.Namespace) -> int:
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+    train_flow = importlib.import_module("flows.train")
+    summary = train_flow.run(args.task, profile=args.profile, variant=args.variant, method=args.method,
+                             overrides=args.set, seed=args.seed, device=args.device)
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+    report_flow = importlib.import_module("flows.report")
+    for path in report_flow.run(args.task):
+        print(path)
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+    evaluate_flow = importlib.import_module("flows.evaluate")
+    summary = evaluate_flow.run(args.task, profile=args.profile, variant=args.variant, seeds=args.seeds,
+                                executor=args.executor, overrides=args.set, experiment=args.experiment)
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
+def _prefect_defaults() -> None:
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    if bool(args.all) == bool(args.task):
+        print("pasta run: error: give either --task TASK or --all", file=sys.stderr)
+        return 2
+    _prefect_defaults()
+    pipeline = importlib.import_module("flows.pipeline")
+    tasks = pipeline.ALL_TASKS if args.all else (args.task,)
+    pipeline.run(tasks, profile=args.profile, variant=args.variant, method=args.method, workers=args.workers,
+                 executor=args.executor, overrides=args.set)
+    return 0
+
+
+def _cmd_ablations(args: argparse.Namespace) -> int:
+    _prefect_defaults()
+    ablations = importlib.import_module("flows.ablations")
+    results = ablations.run(args.task, profile=args.profile, variants=args.variants, method=args.method,
+                            workers=args.workers, executor=args.executor, overrides=args.set)
+    print(json.dumps(results, indent=1, default=str))
+    return 0
+
+
+def _cmd_sweeps(args: argparse.Namespace) -> int:
+    _prefect_defaults()
+    sweeps = importlib.import_module("flows.sweeps")
+    results = sweeps.run(profile=args.profile, only=args.only, executor=args.executor, overrides=args.set)
+    print(json.dumps(results, indent=1, default=str))
+    return 0
+
+
+def _add_run_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--method", default="gbto", choices=("gbto", "scripted"),
+                        help="how demonstrations are made (default gbto)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes for the data (default 2)")
+    parser.add_argument("--executor", default="policy", choices=("policy", "scripted"),
+                        help="run the planned skills with the learned policies or the scripted skills")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pasta", description="PASTA re-implementation: simulator, data, training, planning."
@@ -83,6 +158,53 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--seed", type=int, default=0)
     data.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     data.set_defaults(func=_cmd_data)
+
+    train = sub.add_parser("train", help="train a task's VAE and one variant's heads (Prefect flow, MLflow run)")
+    _add_task_profile(train)
+    train.add_argument("--variant", default="pasta", help="pasta, an ablation, or flat3d (default pasta)")
+    train.add_argument("--method", default=None, help="dataset to read: gbto or scripted (default: gbto if present)")
+    train.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
+    train.set_defaults(func=_cmd_train)
+
+    report = sub.add_parser("report", help="rebuild the reports (tables, figures) from MLflow alone")
+    report.add_argument("--task", default=None, choices=TASK_NAMES, help="one task (default: every task with runs)")
+    report.set_defaults(func=_cmd_report)
+
+    evaluate = sub.add_parser("evaluate", help="plan and execute the 5 test configurations (Prefect flow, MLflow runs)")
+    _add_task_profile(evaluate)
+    evaluate.add_argument("--variant", default="pasta", help="trained variant to evaluate (default pasta)")
+    evaluate.add_argument("--executor", default="policy", choices=("policy", "scripted"),
+                          help="run the skills with the learned policies or the scripted skills")
+    evaluate.add_argument("--seeds", type=int, nargs="+", default=None, help="seeds (default: cfg.eval.seeds)")
+    evaluate.add_argument("--experiment", default="main", help="pasta.experiment tag (default main)")
+    evaluate.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
+    evaluate.set_defaults(func=_cmd_evaluate)
+
+    run = sub.add_parser("run", help="a task's whole pipeline: data, training, evaluation, report (resumable)")
+    run.add_argument("--task", default=None, choices=TASK_NAMES, help="task name")
+    run.add_argument("--all", action="store_true", help="every task, one after another")
+    run.add_argument("--profile", default="smoke", choices=PROFILE_NAMES, help="scale profile (default: smoke)")
+    run.add_argument("--variant", default="pasta", help="pasta, an ablation, or flat3d (default pasta)")
+    _add_run_options(run)
+    run.set_defaults(func=_cmd_run)
+
+    ablations = sub.add_parser("ablations", help="Table 5: train and evaluate every variant under one parent run")
+    ablations.add_argument("--task", default="CutRearrange", choices=TASK_NAMES, help="task (default CutRearrange)")
+    ablations.add_argument("--profile", default="smoke", choices=PROFILE_NAMES, help="scale profile")
+    ablations.add_argument("--variants", nargs="+", default=None, help="variants (default: all six)")
+    _add_run_options(ablations)
+    ablations.set_defaults(func=_cmd_ablations)
+
+    sweeps = sub.add_parser("sweeps", help="Fig. 2 samples, Table 8 horizons, CRS with distractors")
+    sweeps.add_argument("--profile", default="smoke", choices=PROFILE_NAMES, help="scale profile")
+    sweeps.add_argument("--only", nargs="+", default=None, choices=("samples", "horizon", "distractors"),
+                        help="which sweeps (default: all)")
+    sweeps.add_argument("--executor", default="policy", choices=("policy", "scripted"),
+                        help="run the planned skills with the learned policies or the scripted skills")
+    sweeps.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
+    sweeps.set_defaults(func=_cmd_sweeps)
     return parser
 
 

@@ -8,7 +8,10 @@ The library itself never imports MLflow; flows do, through this module.
 """
 
 import contextlib
+import hashlib
 import json
+import os
+import shutil
 import subprocess
 from collections.abc import Iterator, Mapping
 from functools import lru_cache
@@ -35,6 +38,36 @@ def experiment_name(task: str) -> str:
     return f"pasta/{task}"
 
 
+def artifact_root() -> str | None:
+    """Where new experiments keep artifacts: ``$MLFLOW_ARTIFACT_ROOT``, else beside a sqlite store's file.
+
+    MLflow's default for a database store is ``./mlruns`` in the current directory, which would
+    scatter artifacts wherever a command happens to run. Other stores keep MLflow's default.
+    """
+    explicit = os.environ.get("MLFLOW_ARTIFACT_ROOT")
+    if explicit:
+        return explicit
+    uri = tracking_uri()
+    if uri.startswith("sqlite:///"):
+        return (Path(uri[len("sqlite:///"):]).parent / "mlartifacts").resolve().as_uri()
+    return None
+
+
+def use_experiment(task: str) -> str:
+    """Make ``pasta/<task>`` the active experiment, creating it with ``artifact_root()``; returns its id."""
+    name = experiment_name(task)
+    existing = mlflow.get_experiment_by_name(name)
+    if existing is None:
+        root = artifact_root()
+        location = f"{root}/{name.replace('/', '_')}" if root else None
+        try:
+            mlflow.create_experiment(name, artifact_location=location)
+        except mlflow.exceptions.MlflowException:
+            if mlflow.get_experiment_by_name(name) is None:  # not a lost race with another process
+                raise
+    return mlflow.set_experiment(name).experiment_id
+
+
 @lru_cache(maxsize=1)
 def git_commit() -> str:
     """The checkout's commit (with ``-dirty`` when it has uncommitted changes), or ``unknown``."""
@@ -47,6 +80,12 @@ def git_commit() -> str:
         return commit + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
+
+
+def config_hash(cfg: TaskConfig) -> str:
+    """A short, stable digest of the resolved config: runs with equal hashes ran the same settings."""
+    text = json.dumps(cfg.model_dump(mode="json"), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
@@ -75,7 +114,7 @@ def run(task: str, stage: str, *, profile: str, variant: str | None = None, seed
     active run is thread-local, so nothing relies on an ambient run.
     """
     configure()
-    mlflow.set_experiment(experiment_name(task))
+    use_experiment(task)
     name = run_name or "-".join(part for part in (stage, variant, None if seed is None else f"s{seed}") if part)
     tags = {
         "pasta.task": task,
@@ -86,6 +125,8 @@ def run(task: str, stage: str, *, profile: str, variant: str | None = None, seed
         "pasta.git_commit": git_commit(),
         **(extra_tags or {}),
     }
+    if cfg is not None:
+        tags["pasta.config_hash"] = config_hash(cfg)
     if parent_run_id:
         tags["mlflow.parentRunId"] = parent_run_id
     with mlflow.start_run(run_name=name, tags=tags, nested=parent_run_id is not None) as active:
@@ -116,3 +157,32 @@ def search_runs(task: str, stage: str | None = None, **tags: str) -> pd.DataFram
     if stage is not None:
         filters.append(f"tags.`pasta.stage` = '{stage}'")
     return mlflow.search_runs(experiment_names=[experiment_name(task)], filter_string=" and ".join(filters))
+
+
+def finished_run_id(task: str, stage: str, cfg: TaskConfig, **tags: str) -> str | None:
+    """The newest FINISHED run of ``stage`` with this exact config and tags, or None (what to skip on resume)."""
+    runs = search_runs(task, stage, config_hash=config_hash(cfg), **tags)
+    if runs.empty:
+        return None
+    finished = runs[runs["status"] == "FINISHED"]
+    if finished.empty:
+        return None
+    return str(finished.sort_values("start_time", ascending=False).iloc[0]["run_id"])
+
+
+def download_latest_artifact(task: str, stage: str, artifact: str, destination: str | Path, **tags: str) -> Path | None:
+    """Download ``artifact`` of the newest FINISHED run of ``stage`` with these ``pasta.<tag>`` values into the
+    folder ``destination`` (keeping its file name); ``None`` when there is no such run."""
+    runs = search_runs(task, stage, **tags)
+    if runs.empty:
+        return None
+    finished = runs[runs["status"] == "FINISHED"].sort_values("start_time", ascending=False)
+    if finished.empty:
+        return None
+    run_id = str(finished.iloc[0]["run_id"])
+    folder = Path(destination)
+    folder.mkdir(parents=True, exist_ok=True)
+    local = mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=artifact)
+    target = folder / Path(artifact).name
+    shutil.move(local, target)
+    return target

@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
 # Install everything `pasta` needs, idempotently:
-#   1. system packages (as root, Debian/Ubuntu): libusb-1.0-0 (open3d imports need it), python3-venv;
+#   1. system packages (as root, Debian/Ubuntu): libusb-1.0-0 (open3d imports need it), python3-venv,
+#      chromium and fonts-liberation (the MLflow UI browser test);
 #   2. the virtual environment .venv and `pip install -e ".[dev]"`.
 # Set PASTA_SKIP_APT=1 to skip step 1. Step 2 is skipped when pyproject.toml is unchanged since the
 # last successful install (stamp file in .venv).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-apt_packages=(libusb-1.0-0 python3-venv)
+apt_packages=(libusb-1.0-0 python3-venv chromium fonts-liberation)
 if [ "${PASTA_SKIP_APT:-0}" = "1" ]; then
     echo "setup: PASTA_SKIP_APT=1, skipping apt packages (${apt_packages[*]})"
 elif [ "$(id -u)" -ne 0 ]; then

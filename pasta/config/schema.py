@@ -192,6 +192,9 @@ class PlanConfig(Frozen):
     iterations: int = Field(ge=1)
     samples: int = Field(ge=1)
     receding_horizon: int | None = Field(default=None, ge=1)
+    # Planning horizon when it differs from the task's (the CRS horizon sweep, appendix Table 8);
+    # the evaluation problems keep the task's own horizon.
+    horizon: int | None = Field(default=None, ge=1, le=8)
 
 
 class EvalConfig(Frozen):

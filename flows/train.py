@@ -1,0 +1,152 @@
+"""Prefect flow: train a task's models for one variant and record them in MLflow.
+
+    pasta train --task CutRearrange --profile small --variant pasta [--method scripted|gbto]
+
+1. The VAE is trained once per task, profile and representation (entity VAE; a whole-scene VAE for
+   ``flat3d``) and kept under ``$PASTA_HOME/checkpoints/<task>/<profile>/vae-<key>/vae.pt``; the key hashes
+   the VAE settings and the dataset index, so every variant reuses it and a changed dataset retrains it.
+2. The heads of the variant train on the frozen VAE's cached latents (eq. 6); the finished bundle is
+   ``checkpoint_dir(task, profile, variant)/models.pt``.
+
+Both stages checkpoint after every epoch and resume from there, so a rerun after an interruption continues
+where it stopped. Training is torch only, so it runs in the flow's thread. One MLflow run (stage
+``train``) holds the resolved config, per-epoch metrics, the final metrics (``vae_heldout_chamfer``,
+``feasibility_auc_random``, ``feasibility_auc_hard``, ``cost_r2``, ``policy_mse``, ``policy_zero_mse``),
+the reconstruction and latent-space figures and the bundle as ``checkpoints/models.pt``.
+"""
+
+import hashlib
+import json
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
+
+from pasta import tracking
+from pasta.config import load
+from pasta.config.schema import TaskConfig
+from pasta.models import ModelConfig, variant_spec
+from pasta.paths import checkpoint_dir, data_dir
+from pasta.train.bundle import save_trained
+from pasta.train.datasets import vae_clouds
+from pasta.train.device import training_device
+from pasta.train.figures import latent_grid_figure, reconstruction_figure
+from pasta.train.locate import BUNDLE_FILE, model_task
+from pasta.train.stages import heads_stage, load_training_data, vae_file_name, vae_stage
+
+FINAL_METRICS = ("feasibility_auc_random", "feasibility_auc_hard", "cost_r2", "policy_mse", "policy_zero_mse")
+METHOD_PREFERENCE = ("gbto", "scripted")
+
+
+def dataset_folder(task_name: str, profile: str, method: str | None) -> Path:
+    """The dataset to train on: ``method``'s, or the first of gbto, scripted that has an index."""
+    root = data_dir(task_name, profile)
+    for candidate in (method,) if method else METHOD_PREFERENCE:
+        if (root / candidate / "index.csv").is_file():
+            return root / candidate
+    raise FileNotFoundError(f"no dataset for {task_name} at profile {profile} under {root} "
+                            f"(looked for {method or ' or '.join(METHOD_PREFERENCE)}); run "
+                            f"`pasta data --task {task_name} --profile {profile}` first")
+
+
+def _digest(*parts: object) -> str:
+    text = json.dumps(parts, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def vae_key(cfg: TaskConfig, folder: Path, whole_scene: bool, model_config: ModelConfig, seed: int) -> str:
+    """Hash of what the VAE depends on: its settings, the representation and the dataset index's content."""
+    index = (folder / "index.csv").read_bytes()
+    return _digest(cfg.train.vae_lr, cfg.train.vae_epochs, cfg.train.latent_dim, whole_scene,
+                   model_config.with_latent_dim(cfg.train.latent_dim).vae, hashlib.sha256(index).hexdigest(),
+                   cfg.data.model_dump(mode="json"), seed)
+
+
+@task(name="train-vae", cache_policy=NO_CACHE)
+def train_vae_task(cfg: TaskConfig, data, folder: Path, model_config: ModelConfig, seed: int, device, log_epoch):
+    """The task's VAE: ``folder/vae.pt`` when it exists, else trained (resuming from ``folder/training.pt``)."""
+    return vae_stage(cfg, data, folder, model_config=model_config, seed=seed, on_epoch=log_epoch, device=device)
+
+
+@task(name="train-heads", cache_policy=NO_CACHE)
+def train_heads_task(cfg: TaskConfig, variant: str, data, vae, progress: Path, model_config: ModelConfig,
+                     seed: int, device, log_epoch):
+    """The variant's policy, feasibility and cost heads (resuming from ``progress``)."""
+    return heads_stage(cfg, variant, data, vae, progress, model_config=model_config, seed=seed,
+                       on_epoch=log_epoch, device=device)
+
+
+class EpochLogger:
+    """Logs each epoch's metrics to the active MLflow run (step = epoch) and remembers which it logged."""
+
+    def __init__(self) -> None:
+        self.seen: set[tuple[str, int]] = set()
+
+    def __call__(self, stage: str, epoch: int, metrics: dict[str, float]) -> None:
+        tracking.log_metrics(metrics, step=epoch)
+        self.seen.add((stage, epoch))
+
+    def backfill(self, stage: str, history: Sequence[Mapping[str, float]]) -> None:
+        """Log the epochs of ``history`` this run did not see (trained before a resume, or a reused VAE)."""
+        for epoch, metrics in enumerate(history):
+            if (stage, epoch) not in self.seen:
+                self(stage, epoch, dict(metrics))
+
+
+@flow(name="train", flow_run_name="train-{task_name}-{profile}-{variant}")
+def train(task_name: str, profile: str = "smoke", variant: str = "pasta", method: str | None = None,
+          overrides: Sequence[str] = (), seed: int = 0, device: str | None = None,
+          networks: dict | None = None) -> dict:
+    """Train (or finish training) one variant of a task; returns the final metrics and where things are.
+
+    ``networks`` (a ``ModelConfig.to_dict()``) changes the network sizes, e.g. for tests.
+    """
+    variant_spec(variant)
+    cfg = load(model_task(task_name), profile, list(overrides))
+    sizes = ModelConfig() if networks is None else ModelConfig.from_dict(networks)
+    sizes = sizes.with_latent_dim(cfg.train.latent_dim)
+    whole_scene = variant_spec(variant).whole_scene_latent
+    folder = dataset_folder(cfg.task, profile, method)
+    chosen_device = training_device(device)
+    started = time.perf_counter()
+    data = load_training_data(cfg, folder, whole_scene=whole_scene, seed=seed,
+                              entity_points=sizes.vae.n_decoded_points)
+    key = vae_key(cfg, folder, whole_scene, sizes, seed)
+    vae_folder = checkpoint_dir(cfg.task, profile, f"{vae_file_name(whole_scene)}-{key}")
+    variant_folder = checkpoint_dir(cfg.task, profile, variant)
+    progress = variant_folder / f"training-{_digest(key, tracking.config_hash(cfg), sizes, seed)}.pt"
+    logger = EpochLogger()
+    with tracking.run(cfg.task, "train", profile=profile, variant=variant, seed=seed, cfg=cfg) as active:
+        tracking.log_metrics({"trajectories": len(data.demos), "entities": len(data.table)})
+        vae = train_vae_task(cfg, data, vae_folder, sizes, seed, chosen_device, logger)
+        logger.backfill("vae", vae.history)
+        heads = train_heads_task(cfg, variant, data, vae.vae, progress, sizes, seed, chosen_device, logger)
+        logger.backfill("heads", heads.history)
+        bundle_path = variant_folder / BUNDLE_FILE
+        save_trained(bundle_path, heads.bundle, epoch=len(heads.history), extra={"vae_key": key})
+        summary = {"vae_heldout_chamfer": vae.heldout_chamfer, **{k: heads.metrics[k] for k in FINAL_METRICS
+                                                                  if k in heads.metrics}}
+        summary["wall_s"] = time.perf_counter() - started
+        tracking.log_metrics(summary)
+        heldout = vae_clouds(data.demos, data.table, data.vae_heldout)
+        with tempfile.TemporaryDirectory() as scratch:
+            title = ("Fig. 4: whole-scene latent space" if whole_scene else "Fig. 3: entity latent space")
+            tracking.log_artifact(latent_grid_figure(vae.vae, Path(scratch) / "latent_space.png",
+                                                     title=f"{cfg.task} {title}"), "figures")
+            tracking.log_artifact(reconstruction_figure(vae.vae, heldout, Path(scratch) / "reconstruction.png"),
+                                  "figures")
+        tracking.log_artifact(bundle_path, "checkpoints")
+        summary.update(mlflow_run_id=active.info.run_id, bundle=str(bundle_path), dataset=str(folder),
+                       vae=str(vae_folder / "vae.pt"), device=str(chosen_device))
+    return summary
+
+
+def run(task_name: str, profile: str = "smoke", variant: str = "pasta", method: str | None = None,
+        overrides: Sequence[str] = (), seed: int = 0, device: str | None = None) -> dict:
+    """Run :func:`train`; the CLI's entry point. Refuses a bad task, profile, override or variant before Prefect."""
+    variant_spec(variant)
+    load(model_task(task_name), profile, list(overrides))
+    return train(task_name, profile, variant, method, tuple(overrides), seed, device)

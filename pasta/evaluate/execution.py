@@ -1,0 +1,168 @@
+"""Run a plan in the simulator, skill by skill, open loop (model_spec §5.6; env_spec §2.5).
+
+For each plan step ``h`` (skill ``k_h``, attention ``A_h``):
+
+1. decode every latent of ``U^h`` to points (``bundle.vae.decode``); the first ``N_out`` are the new
+   subgoals (the planner puts them first);
+2. skip the skill when the current dough already is the decoded ``U^h`` (as many pieces, Chamfer <
+   ``SKIP_CHAMFER``);
+3. find the attended dough (:func:`pasta.evaluate.selection.attended_mask`) and freeze its observation
+   indices for the whole skill;
+4. place the skill's tool next to it (:func:`pasta.data.skills.place_tool_for_skill`);
+5. act for ``cfg.sim.steps_per_skill`` steps with the learned policy (closed loop on the frozen points,
+   resampled to 1000, the tool's points and the stacked subgoals) or the scripted skill (open loop,
+   toward the subgoals; appendix §3.1's real-robot executor);
+6. ``cfg.sim.settle_steps`` zero-action steps, then park the tool at its back pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from pasta.config.schema import TaskConfig
+from pasta.data.configurations import tool_clearance
+from pasta.data.skills import place_tool_for_skill, scripted_actions, skill_tool
+from pasta.evaluate.encoding import ENTITY_POINTS, segment
+from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_action
+from pasta.evaluate.selection import attended_mask
+from pasta.geometry.distances import chamfer_distance
+from pasta.geometry.entities import resample
+from pasta.sim.envs.base import DoughEnv, Observation
+from pasta.sim.tool_points import world_sdf
+from pasta.train.bundle import TrainedModels
+
+if TYPE_CHECKING:
+    from pasta.plan.result import Plan
+
+__all__ = ["EXECUTORS", "SKIP_CHAMFER", "Execution", "StepRecord", "already_reached", "check_executor", "decode_set",
+           "execute_plan", "park_tool"]
+
+EXECUTORS = ("policy", "scripted")
+SKIP_CHAMFER = 1e-3  # official exec_threshold: the dough already is the subgoal (squared Chamfer units)
+PARK_RAISE = 0.02  # a parked tool is raised in these steps until it clears the dough
+
+
+@dataclass(frozen=True, eq=False)
+class StepRecord:
+    """One executed plan step.
+
+    Attributes:
+        skill: the skill's name.
+        subgoal_points: ``(K_h * M, 3)`` every decoded entity of ``U^h``, stacked (new subgoals first).
+        new_subgoal_points: ``(N_out * M, 3)`` the decoded new subgoals, stacked (the policy's goal).
+        attended: ``(P,)`` bool mask of the observation points the skill acted on (all False when skipped).
+        skipped: the dough already matched ``U^h``, so no action was taken.
+        observation: the observation after the skill, the settling and the tool reset.
+    """
+
+    skill: str
+    subgoal_points: np.ndarray
+    new_subgoal_points: np.ndarray
+    attended: np.ndarray
+    skipped: bool
+    observation: Observation
+
+
+@dataclass(frozen=True, eq=False)
+class Execution:
+    """Every executed step of a plan and the final observation."""
+
+    steps: tuple[StepRecord, ...]
+    final: Observation
+
+
+def check_executor(executor: str) -> str:
+    if executor not in EXECUTORS:
+        raise ValueError(f"unknown executor {executor!r}; choose one of {list(EXECUTORS)}")
+    return executor
+
+
+def decode_set(bundle: TrainedModels, latents: torch.Tensor) -> np.ndarray:
+    """``(K, D_z + 3)`` latents -> ``(K, M, 3)`` float32 decoded entity clouds."""
+    latent_dim = bundle.vae.config.latent_dim
+    u = latents.detach().float().cpu()
+    if u.ndim != 2 or u.shape[1] != latent_dim + 3:
+        raise ValueError(f"latents must have shape (K, {latent_dim + 3}), got {tuple(u.shape)}")
+    device = next(bundle.vae.parameters()).device
+    with torch.no_grad():
+        points = bundle.vae.decode(u[:, :latent_dim].to(device), u[:, latent_dim:].to(device))
+    return points.float().cpu().numpy()
+
+
+def park_tool(env: DoughEnv, tool_name: str) -> Observation:
+    """Teleport a tool to its back pose, raised until it keeps ``tool_clearance`` from every particle.
+
+    At coarse grids the dough sits higher than in the original, where some back poses (the knife's)
+    would cut into it.
+    """
+    tool = env.tool(tool_name)
+    back = env.back_pose(tool_name)
+    particles = env.particles()
+    x, y, z = back.pos
+    clearance = tool_clearance(env.cfg)
+    while y < tool.upper_bound[1] and world_sdf(tool, particles, (x, y, z), back.rot, back.gap).min() < clearance:
+        y += PARK_RAISE
+    return env.teleport_tool(tool_name, (x, min(y, tool.upper_bound[1]), z), back.rot, back.gap)
+
+
+def already_reached(points: np.ndarray, labels: np.ndarray, subgoal_points: np.ndarray, n_entities: int) -> bool:
+    """Whether the dough ``(P, 3)`` (DBSCAN ``labels``) already is the decoded subgoal set: as many pieces as
+    its ``n_entities`` and Chamfer to the stacked ``(Q, 3)`` subgoal points below ``SKIP_CHAMFER``."""
+    if int(np.unique(labels).size) != n_entities:
+        return False
+    with torch.no_grad():
+        gap = chamfer_distance(torch.from_numpy(np.array(points, np.float32)),
+                               torch.from_numpy(np.array(subgoal_points, np.float32)))
+    return float(gap) < SKIP_CHAMFER
+
+
+def _run_policy(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, plan_step: int, indices: np.ndarray,
+                goal_points: np.ndarray, goal_latents: torch.Tensor, rng: np.random.Generator) -> None:
+    tool_row = env.tool_names.index(tool)
+    for k in range(env.cfg.sim.steps_per_skill):
+        obs = env.observation()
+        seen = PolicyInput(
+            obs_points=resample(obs.dough_points[indices], ENTITY_POINTS, rng),
+            tool_points=obs.tool_points[tool],
+            tool_state=obs.tool_states[tool_row],
+            goal_points=goal_points,
+            goal_latents=goal_latents,
+        )
+        env.step(checked_action(policy_action(bundle, skill, seen), skill, plan_step, k))
+
+
+def execute_plan(cfg: TaskConfig, bundle: TrainedModels, env: DoughEnv, plan: Plan, executor: str,
+                 rng: np.random.Generator) -> Execution:
+    """Execute ``plan`` from the environment's current (settled) state, the one ``U^0`` was encoded from."""
+    check_executor(executor)
+    latent_dim = bundle.vae.config.latent_dim
+    records: list[StepRecord] = []
+    for h, (skill, attention) in enumerate(zip(plan.skills, plan.attention, strict=True), start=1):
+        tool = skill_tool(cfg, skill).name
+        before, after = plan.latent_sets[h - 1], plan.latent_sets[h]
+        n_out = after.shape[0] - (before.shape[0] - len(attention))
+        decoded = decode_set(bundle, after)
+        everything = decoded.reshape(-1, 3)
+        new_subgoals = decoded[:n_out].reshape(-1, 3)
+        points = np.asarray(env.observation().dough_points)
+        labels = segment(cfg, points)
+        if already_reached(points, labels, everything, after.shape[0]):
+            records.append(StepRecord(skill, everything, new_subgoals, np.zeros(len(points), bool), True,
+                                      env.observation()))
+            continue
+        centres = None if h == 1 else before[list(attention), latent_dim:].detach().cpu().numpy()
+        mask = attended_mask(points, labels, attention, centres)
+        target = np.concatenate([new_subgoals, points[~mask]])
+        place_tool_for_skill(env, skill, mask, target)
+        if executor == "scripted":
+            for action in scripted_actions(env, skill, target, mask):
+                env.step(action)
+        else:
+            _run_policy(env, bundle, skill, tool, h, np.flatnonzero(mask), new_subgoals, after[:n_out], rng)
+        env.settle(cfg.sim.settle_steps)
+        records.append(StepRecord(skill, everything, new_subgoals, mask, False, park_tool(env, tool)))
+    return Execution(steps=tuple(records), final=env.observation())

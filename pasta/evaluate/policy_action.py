@@ -1,0 +1,76 @@
+"""One action of a skill policy from point clouds, for every policy kind a variant can have.
+
+* ``SetPolicy`` (PASTA and most ablations): observation, tool and goal points (model_spec §4.1).
+* ``ToolConcatPolicy``: observation and goal points plus the tool's 8-number state.
+* ``LatentSetPolicy`` ("shared encoder"): the VAE latents of the observation piece and of the subgoals.
+
+Actions come back unclipped; :func:`checked_action` refuses non-finite ones (naming the step and the
+value) and only then clips to [-1, 1], as the environment would.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from pasta.models.policy_ablations import LatentSetPolicy, ToolConcatPolicy
+from pasta.train.bundle import TrainedModels
+
+__all__ = ["NonFiniteActionError", "PolicyInput", "checked_action", "policy_action"]
+
+
+class NonFiniteActionError(RuntimeError):
+    """A policy produced a NaN or infinite action."""
+
+
+@dataclass(frozen=True, eq=False)
+class PolicyInput:
+    """What a skill policy sees at one environment step.
+
+    Attributes:
+        obs_points: ``(N_o, 3)`` the attended dough, resampled.
+        tool_points: ``(N_t, 3)`` surface points of the skill's tool.
+        tool_state: ``(8,)`` the tool's position, quaternion and gap.
+        goal_points: ``(N_g, 3)`` the decoded new subgoals, stacked.
+        goal_latents: ``(N_out, D_z + 3)`` the new subgoal latents.
+    """
+
+    obs_points: np.ndarray
+    tool_points: np.ndarray
+    tool_state: np.ndarray
+    goal_points: np.ndarray
+    goal_latents: torch.Tensor
+
+
+def _batch(points: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.array(points, dtype=np.float32)).unsqueeze(0)
+
+
+def policy_action(bundle: TrainedModels, skill: str, seen: PolicyInput) -> np.ndarray:
+    """The raw ``(action_dim,)`` float64 action of ``skill``'s policy (no clipping, no checks)."""
+    policy = bundle.policy(skill)
+    with torch.no_grad():
+        if isinstance(policy, LatentSetPolicy):
+            obs = bundle.vae.encode_entities(_batch(seen.obs_points)).unsqueeze(0)  # (1, 1, E)
+            action = policy(obs, seen.goal_latents.float().unsqueeze(0))
+        elif isinstance(policy, ToolConcatPolicy):
+            action = policy(_batch(seen.obs_points), _batch(seen.goal_points),
+                            torch.from_numpy(np.array(seen.tool_state, np.float32)).unsqueeze(0))
+        else:
+            action = policy(_batch(seen.obs_points), _batch(seen.tool_points), _batch(seen.goal_points))
+    return action.reshape(-1).double().numpy()
+
+
+def checked_action(action: np.ndarray, skill: str, plan_step: int, env_step: int) -> np.ndarray:
+    """``action`` clipped to [-1, 1] as float32; raises :class:`NonFiniteActionError` if any value is not finite."""
+    values = np.asarray(action, dtype=np.float64).reshape(-1)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise NonFiniteActionError(
+            f"policy of skill {skill!r} (plan step {plan_step}) gave a non-finite action at environment step "
+            f"{env_step}: value {float(values[i])} at index {i} of {values.tolist()}"
+        )
+    return np.clip(values, -1.0, 1.0).astype(np.float32)

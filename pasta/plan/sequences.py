@@ -1,0 +1,77 @@
+"""Skills as entity counts, and the skill sequences that take the observed entity count to the goal's."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+__all__ = ["SkillSpec", "enumerate_sequences", "resolve_sequence", "set_sizes"]
+
+
+@dataclass(frozen=True)
+class SkillSpec:
+    """A skill as the planner sees it: it takes ``n_in`` entities and gives ``n_out`` new ones."""
+
+    name: str
+    n_in: int
+    n_out: int
+
+    def __post_init__(self) -> None:
+        if self.n_in < 1 or self.n_out < 1:
+            raise ValueError(f"skill {self.name!r} needs n_in, n_out >= 1, got {self.n_in} -> {self.n_out}")
+
+
+def set_sizes(sequence: Sequence[SkillSpec], k_obs: int) -> tuple[int, ...]:
+    """Entity counts ``K_0 .. K_H`` along ``sequence`` from ``k_obs`` entities.
+
+    Raises:
+        ValueError: when a step takes more entities than the set then holds.
+    """
+    sizes = [k_obs]
+    for h, skill in enumerate(sequence, start=1):
+        if skill.n_in > sizes[-1]:
+            names = [s.name for s in sequence]
+            raise ValueError(f"step {h} ({skill.name}) of {names} takes {skill.n_in} entities but U^{h - 1} "
+                             f"holds {sizes[-1]}")
+        sizes.append(sizes[-1] - skill.n_in + skill.n_out)
+    return tuple(sizes)
+
+
+def enumerate_sequences(skills: Sequence[SkillSpec], horizon: int, k_obs: int, k_goal: int
+                        ) -> list[tuple[SkillSpec, ...]]:
+    """All sequences of ``horizon`` skills whose net change ``sum(n_out - n_in)`` is ``k_goal - k_obs``.
+
+    Sequences come in lexicographic order of the skills' indices; a sequence that would take more
+    entities than the set holds at some step is left out.
+
+    Raises:
+        ValueError: naming the counts and the skills when no sequence qualifies.
+    """
+    if horizon < 1:
+        raise ValueError(f"horizon must be >= 1, got {horizon}")
+    if k_obs < 1 or k_goal < 1:
+        raise ValueError(f"need at least one observed and one goal entity, got {k_obs} and {k_goal}")
+    found = []
+    for sequence in itertools.product(skills, repeat=horizon):
+        if sum(s.n_out - s.n_in for s in sequence) != k_goal - k_obs:
+            continue
+        try:
+            set_sizes(sequence, k_obs)
+        except ValueError:
+            continue
+        found.append(sequence)
+    if not found:
+        described = ", ".join(f"{s.name} ({s.n_in}->{s.n_out})" for s in skills)
+        raise ValueError(f"no skill sequence of horizon {horizon} takes {k_obs} entities to {k_goal} "
+                         f"(net change {k_goal - k_obs:+d}); skills: {described}")
+    return found
+
+
+def resolve_sequence(skills: Sequence[SkillSpec], names: Sequence[str]) -> tuple[SkillSpec, ...]:
+    """The specs of the named skills; raises ``KeyError`` naming an unknown skill and the known ones."""
+    by_name = {s.name: s for s in skills}
+    try:
+        return tuple(by_name[name] for name in names)
+    except KeyError as error:
+        raise KeyError(f"unknown skill {error.args[0]!r}; known: {sorted(by_name)}") from None

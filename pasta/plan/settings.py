@@ -1,0 +1,72 @@
+"""``PlanSettings``: the optimiser's knobs, from the task config or by hand."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pasta.config.schema import TaskConfig
+
+__all__ = ["DEFAULT_HALVING", "PlanSettings"]
+
+# Fractions of the iterations after which the worse half of the surviving samples is dropped
+# (successive halving; see docs/planning.md for the measurements behind this choice).
+DEFAULT_HALVING = (0.03, 0.06, 0.12, 0.25, 0.5)
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    """How the latent planner optimises.
+
+    Attributes:
+        lr: Adam learning rate (Table 3: 0.01).
+        iterations: objective evaluations per sample; Adam steps after all but the last.
+        samples: samples (attention structure + initialisation) per skill sequence.
+        alpha: weight of the predicted set cost in the objective (model_spec §5.4: 10 CutRearrange, else 100).
+        feasibility_floor: feasibilities below this count as this (keeps the log finite).
+        seed: seeds the attention structures and the initial latents.
+        halving: fractions of ``iterations`` after which the worse half of the surviving samples is dropped;
+            ``()`` optimises every sample to the end (the exhaustive planner).
+        min_survivors: halving never leaves fewer samples than this (or than there are).
+        chunk_samples: samples evaluated per forward/backward pass (bounds memory; results do not depend on it
+            beyond floating-point summation order).
+    """
+
+    lr: float
+    iterations: int
+    samples: int
+    alpha: float
+    feasibility_floor: float = 0.01
+    seed: int = 0
+    halving: tuple[float, ...] = ()
+    min_survivors: int = 64
+    chunk_samples: int = 8192
+
+    def __post_init__(self) -> None:
+        if self.lr <= 0:
+            raise ValueError(f"lr must be > 0, got {self.lr}")
+        if self.iterations < 1:
+            raise ValueError(f"iterations must be >= 1, got {self.iterations}")
+        if self.samples < 1:
+            raise ValueError(f"samples must be >= 1, got {self.samples}")
+        if self.alpha < 0:
+            raise ValueError(f"alpha must be >= 0, got {self.alpha}")
+        if not 0 < self.feasibility_floor < 1:
+            raise ValueError(f"feasibility_floor must be in (0, 1), got {self.feasibility_floor}")
+        if any(not 0 < f < 1 for f in self.halving) or list(self.halving) != sorted(set(self.halving)):
+            raise ValueError(f"halving must be increasing fractions in (0, 1), got {self.halving}")
+        if self.min_survivors < 1:
+            raise ValueError(f"min_survivors must be >= 1, got {self.min_survivors}")
+        if self.chunk_samples < 1:
+            raise ValueError(f"chunk_samples must be >= 1, got {self.chunk_samples}")
+
+    @classmethod
+    def from_config(cls, cfg: TaskConfig, *, halving: tuple[float, ...] = DEFAULT_HALVING, seed: int = 0
+                    ) -> PlanSettings:
+        """Table 3's lr, iterations and samples of ``cfg.plan``; alpha 10 for CutRearrange, 100 otherwise."""
+        return cls(lr=cfg.plan.lr, iterations=cfg.plan.iterations, samples=cfg.plan.samples,
+                   alpha=10.0 if cfg.task == "CutRearrange" else 100.0, seed=seed, halving=halving)
+
+    def halving_iterations(self) -> frozenset[int]:
+        """Iterations (0-based) after whose step the worse half is dropped; never the last one."""
+        steps = {max(1, round(f * self.iterations)) for f in self.halving}
+        return frozenset(i - 1 for i in steps if i < self.iterations - 1)

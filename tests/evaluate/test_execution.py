@@ -1,0 +1,134 @@
+"""Executing a hand-made plan in the simulator: checked policy actions, scripted skills, parked tools."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from pasta.data.configurations import evaluation_problems, tool_clearance
+from pasta.evaluate.encoding import encode_scene
+from pasta.evaluate.execution import already_reached, execute_plan
+from pasta.evaluate.policy_action import NonFiniteActionError, checked_action
+from pasta.models.vae import VAEConfig
+from pasta.plan.result import Plan
+from pasta.sim.envs import make_env
+from pasta.sim.tool_points import world_sdf
+from pasta.train.bundle import TrainedModels
+
+
+class ScriptedOutputs(nn.Module):
+    """A stand-in policy that returns the given actions in turn, whatever it sees."""
+
+    def __init__(self, outputs: list[list[float]]):
+        super().__init__()
+        self.outputs = outputs
+        self.calls = 0
+
+    def forward(self, obs_points, tool_points, goal_points):
+        assert obs_points.shape == (1, 1000, 3) and tool_points.shape == (1, 100, 3)
+        out = torch.tensor([self.outputs[min(self.calls, len(self.outputs) - 1)]])
+        self.calls += 1
+        return out
+
+
+class FixedDecoder(nn.Module):
+    """A stand-in VAE whose every latent decodes to the same cloud."""
+
+    def __init__(self, cloud: np.ndarray):
+        super().__init__()
+        self.config = VAEConfig()
+        self.cloud = nn.Parameter(torch.from_numpy(np.array(cloud, np.float32)), requires_grad=False)
+
+    def decode(self, z, t):
+        return self.cloud.expand(z.shape[0], -1, -1)
+
+
+def replaced(bundle: TrainedModels, **models: nn.Module) -> TrainedModels:
+    return TrainedModels(bundle.task, bundle.variant, bundle.skill_names, bundle.action_dim, bundle.model_config,
+                         bundle.prior, bundle.filter_epsilon, {**bundle.models, **models})
+
+
+def with_policies(bundle: TrainedModels, policy: nn.Module) -> TrainedModels:
+    return replaced(bundle, policy=nn.ModuleList([policy for _ in bundle.skill_names]))
+
+
+def cut_plan(cfg, bundle):
+    """The first evaluation problem, settled, and a one-step plan: cut the box into the target's two pieces."""
+    problem = evaluation_problems(cfg)[0]
+    env = make_env(cfg)
+    env.reset(problem.initial)
+    obs = env.settle(cfg.sim.settle_steps)
+    rng = np.random.default_rng(0)
+    start = encode_scene(cfg, bundle, obs.dough_points, rng)
+    goal = encode_scene(cfg, bundle, problem.target[: cfg.sim.observation_points], rng)
+    assert start.n_entities == 1 and goal.n_entities == 2
+    plan = Plan(skills=("cut",), attention=((0,),), latent_sets=(start.latents, goal.latents), feasibilities=(1.0,),
+                cost=0.0, score=0.0, planning_time_s=0.0)
+    return env, plan
+
+
+def test_checked_action_clips_finite_actions_and_names_bad_ones():
+    np.testing.assert_array_equal(checked_action(np.array([2.0, -3.0, 0.5]), "cut", 1, 0), [1.0, -1.0, 0.5])
+    with pytest.raises(NonFiniteActionError, match=r"'push' \(plan step 2\).*environment step 7: value inf at index 1"):
+        checked_action(np.array([0.0, np.inf]), "push", 2, 7)
+
+
+def test_a_nan_policy_action_stops_execution_naming_the_step(cfg, bundle):
+    env, plan = cut_plan(cfg, bundle)
+    dim = bundle.action_dim
+    nan_second = with_policies(bundle, ScriptedOutputs([[0.0] * dim, [0.0, float("nan")] + [0.0] * (dim - 2)]))
+    with pytest.raises(NonFiniteActionError, match=r"'cut' \(plan step 1\).*environment step 1: value nan at index 1"):
+        execute_plan(cfg, nan_second, env, plan, "policy", np.random.default_rng(0))
+    assert env.step_count == cfg.sim.settle_steps + 1, "exactly the one finite action was taken"
+
+
+def test_scripted_execution_acts_on_the_piece_and_parks_the_tool(cfg, bundle):
+    env, plan = cut_plan(cfg, bundle)
+    before = env.step_count
+    execution = execute_plan(cfg, bundle, env, plan, "scripted", np.random.default_rng(0))
+    (step,) = execution.steps
+    assert not step.skipped and step.attended.all(), "the only piece is the attended one"
+    assert step.new_subgoal_points.shape == (2000, 3) and step.subgoal_points.shape == (2000, 3)
+    assert env.step_count == before + cfg.sim.steps_per_skill + cfg.sim.settle_steps
+    knife = env.tool("knife")
+    pose = env.tool_poses()["knife"]
+    back = env.back_pose("knife")
+    np.testing.assert_allclose(np.array(pose.pos)[[0, 2]], np.array(back.pos)[[0, 2]], atol=1e-6)
+    assert pose.pos[1] >= back.pos[1] - 1e-6
+    assert world_sdf(knife, env.particles(), pose.pos, pose.rot, pose.gap).min() >= tool_clearance(cfg) - 1e-6
+    np.testing.assert_array_equal(execution.final.dough_points, env.observation().dough_points)
+
+
+def test_policy_execution_runs_the_policy_for_the_skill_budget(cfg, bundle):
+    env, plan = cut_plan(cfg, bundle)
+    policy = ScriptedOutputs([[0.0] * bundle.action_dim])
+    execute_plan(cfg, with_policies(bundle, policy), env, plan, "policy", np.random.default_rng(0))
+    assert policy.calls == cfg.sim.steps_per_skill
+
+
+def test_a_step_whose_subgoal_is_already_reached_is_skipped(cfg, bundle):
+    env, cut = cut_plan(cfg, bundle)
+    start = cut.latent_sets[0]
+    plan = Plan(skills=("rearrange",), attention=((0,),), latent_sets=(start, start), feasibilities=(1.0,), cost=0.0,
+                score=0.0, planning_time_s=0.0)
+    before = env.step_count
+    reached = replaced(bundle, vae=FixedDecoder(env.observation().dough_points))
+    execution = execute_plan(cfg, reached, env, plan, "policy", np.random.default_rng(0))
+    assert execution.steps[0].skipped and not execution.steps[0].attended.any()
+    assert env.step_count == before
+
+
+def test_already_reached_needs_the_same_pieces_and_a_small_chamfer():
+    rng = np.random.default_rng(0)
+    points = rng.uniform((0.4, 0.1, 0.4), (0.6, 0.15, 0.5), size=(500, 3))
+    labels = np.zeros(500, dtype=np.int64)
+    assert already_reached(points, labels, points[::-1], n_entities=1)
+    assert not already_reached(points, labels, points, n_entities=2), "a planned cut is not skipped"
+    assert not already_reached(points, labels, points + [0.0, 0.0, 0.2], n_entities=1)
+
+
+def test_unknown_executor_is_refused(cfg, bundle):
+    with pytest.raises(ValueError, match="'magic'.*policy.*scripted"):
+        execute_plan(cfg, bundle, None, None, "magic", np.random.default_rng(0))

@@ -1,0 +1,61 @@
+"""Scores against slow references: EMD by enumerating assignments, means by hand."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from pasta.evaluate.metrics import planned_goal_distance, shape_distance, summary_metrics
+
+
+def brute_force_emd(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean matched distance, minimised over every one-to-one assignment."""
+    return min(float(np.mean([np.linalg.norm(a[i] - b[j]) for i, j in enumerate(perm)]))
+               for perm in itertools.permutations(range(len(b))))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_planned_goal_distance_stacks_the_entities_and_matches_the_slow_emd(seed):
+    rng = np.random.default_rng(seed)
+    decoded = rng.uniform(size=(2, 3, 3))  # two decoded entities of 3 points
+    goal = rng.uniform(size=(6, 3))
+    expected = brute_force_emd(decoded.reshape(-1, 3), goal)
+    assert planned_goal_distance(decoded, goal, seed) == pytest.approx(expected, rel=1e-9)
+
+
+def test_planned_goal_distance_subsamples_the_larger_cloud():
+    rng = np.random.default_rng(4)
+    goal = rng.uniform(size=(5, 3))
+    decoded = np.stack([goal, goal + 10.0])  # 10 points, 5 of them exactly on the goal
+    distance = planned_goal_distance(decoded, goal, seed=0)
+    reference = np.random.default_rng(0).choice(10, 5, replace=False)
+    assert distance == pytest.approx(brute_force_emd(decoded.reshape(-1, 3)[reference], goal), rel=1e-9)
+
+
+def test_shape_distance_is_the_slow_emd_against_the_first_target_points():
+    rng = np.random.default_rng(5)
+    points = rng.uniform(size=(6, 3))
+    target = rng.uniform(size=(9, 3))  # the target holds every particle; the first 6 are compared
+    assert shape_distance(points, target, 0) == pytest.approx(brute_force_emd(points, target[:6]), rel=1e-9)
+
+
+def test_summary_metrics_uses_the_contract_names():
+    rows = [
+        {"config_id": 0, "performance": 0.9, "success": True, "planning_time_s": 2.0, "emd_planned_goal": 0.1,
+         "emd_reached_goal": 0.02, "emd_initial": 0.3},
+        {"config_id": 1, "performance": 0.5, "success": False, "planning_time_s": 4.0, "emd_planned_goal": 0.3,
+         "emd_reached_goal": 0.12, "emd_initial": 0.2},
+    ]
+    metrics = summary_metrics(rows)
+    assert metrics["performance"] == pytest.approx(0.7)
+    assert metrics["success_rate"] == pytest.approx(0.5)
+    assert metrics["planning_time_s"] == pytest.approx(3.0)
+    assert metrics["emd_planned_goal"] == pytest.approx(0.2)
+    assert metrics["emd_reached_goal"] == pytest.approx(0.07)
+    assert metrics["emd_initial"] == pytest.approx(0.25)
+    assert metrics["performance_config_1"] == 0.5 and metrics["success_config_0"] == 1.0
+    assert metrics["planning_time_s_config_0"] == 2.0
+    with pytest.raises(ValueError, match="no evaluation results"):
+        summary_metrics([])

@@ -1,0 +1,43 @@
+"""The train flow end to end on a tiny synthetic dataset at smoke: a real Prefect run with MLflow logging."""
+
+import mlflow
+import pytest
+
+from pasta import tracking
+from pasta.paths import checkpoint_dir, data_dir
+from pasta.train.locate import trained_models
+from tests.models.synthetic import tiny_model_config
+from tests.train.synthetic_demos import write_dataset
+
+pytestmark = pytest.mark.flow
+
+
+def test_train_flow_logs_metrics_figures_and_the_bundle(prefect_server, isolated_store):
+    from flows.train import FINAL_METRICS, train
+
+    write_dataset(data_dir("CutRearrange", "smoke") / "scripted", n_trajectories=10)
+    overrides = ("train.feasibility_batch_size=32", "train.cost_batch_size=32", "train.policy_batch_size=4")
+    summary = train("CutRearrange", "smoke", "pasta", overrides=overrides,
+                    networks=tiny_model_config().to_dict())
+    assert summary["dataset"].endswith("scripted")
+    for key in ("vae_heldout_chamfer", *FINAL_METRICS):
+        assert summary[key] == summary[key], key  # present and not NaN
+
+    tracking.configure()
+    run = mlflow.get_run(summary["mlflow_run_id"])
+    assert run.data.tags["pasta.stage"] == "train" and run.data.tags["pasta.variant"] == "pasta"
+    assert run.data.metrics["cost_r2"] == pytest.approx(summary["cost_r2"])
+    history = mlflow.MlflowClient().get_metric_history(run.info.run_id, "train_cost_loss")
+    assert [m.step for m in history] == [0, 1, 2]  # smoke: 3 head epochs
+    artifacts = {a.path for folder in ("figures", "checkpoints")
+                 for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, folder)}
+    assert artifacts == {"figures/latent_space.png", "figures/reconstruction.png", "checkpoints/models.pt"}
+
+    bundle = trained_models("CutRearrange", "smoke", "pasta")
+    assert bundle.skill_names == ("cut", "rearrange") and bundle.filter_epsilon > 0
+
+    # without the local file, locate() fetches the run's artifact
+    (checkpoint_dir("CutRearrange", "smoke", "pasta") / "models.pt").unlink()
+    assert trained_models("CutRearrange", "smoke", "pasta").action_dim == bundle.action_dim
+    with pytest.raises(FileNotFoundError, match="pasta train --task CutRearrange --profile smoke --variant flat3d"):
+        trained_models("CutRearrange", "smoke", "flat3d")

@@ -1,0 +1,48 @@
+from __future__ import annotations
+
+import pytest
+import torch
+
+from pasta.config import load
+from pasta.models.latent_prior import LatentPrior
+from pasta.plan import DEFAULT_HALVING, PlanSettings, bundle_skills, plan, plan_receding_horizon
+from pasta.train import untrained
+
+PRIOR = LatentPrior(2, (0.2, 0.0, 0.2), (0.8, 0.2, 0.8))
+
+
+def test_settings_from_config():
+    cut_rearrange = PlanSettings.from_config(load("CutRearrange", "paper"))
+    assert (cut_rearrange.lr, cut_rearrange.iterations, cut_rearrange.samples) == (0.01, 100, 5000)
+    assert cut_rearrange.alpha == 10.0 and cut_rearrange.halving == DEFAULT_HALVING
+    crs_twice = PlanSettings.from_config(load("CRS-Twice", "paper"), halving=(), seed=3)
+    assert (crs_twice.iterations, crs_twice.alpha, crs_twice.halving, crs_twice.seed) == (300, 100.0, (), 3)
+
+
+def test_untrained_bundle_plans_and_keeps_its_parameters_trainable():
+    bundle = untrained(load("CutRearrange", "smoke"), "pasta", PRIOR)
+    assert [(s.name, s.n_in, s.n_out) for s in bundle_skills(bundle)] == [("cut", 1, 2), ("rearrange", 1, 1)]
+    gen = torch.Generator().manual_seed(0)
+    obs, goal = PRIOR.sample((1,), gen), PRIOR.sample((2,), gen)
+    settings = PlanSettings(lr=0.01, iterations=4, samples=6, alpha=10.0)
+    result = plan(bundle, obs, goal, 3, settings)
+    assert result.skills.count("cut") == 1 and len(result.skills) == 3
+    assert [u.shape for u in result.latent_sets][-1] == (2, 5)
+    assert all(0 <= f <= 1 for f in result.feasibilities)
+    assert all(p.requires_grad for p in bundle.cost.parameters())
+    with pytest.raises(ValueError, match=r"obs must have shape \(K, 5\), got \(1, 7\)"):
+        plan(bundle, torch.zeros(1, 7), goal, 3, settings)
+
+
+def test_untrained_bundle_receding_horizon():
+    bundle = untrained(load("CRS", "smoke"), "pasta", PRIOR)
+    gen = torch.Generator().manual_seed(0)
+    obs, goal = PRIOR.sample((1,), gen), PRIOR.sample((3,), gen)
+    settings = PlanSettings(lr=0.01, iterations=3, samples=4, alpha=100.0)
+    result = plan_receding_horizon(bundle, obs, goal, ("cut", "push", "spread") * 2, 3, settings)
+    assert [u.shape[0] for u in result.latent_sets] == [1, 2, 2, 2, 3, 3, 3]
+
+
+def test_whole_scene_variant_plans_one_entity():
+    bundle = untrained(load("CutRearrange", "smoke"), "flat3d", PRIOR)
+    assert {(s.n_in, s.n_out) for s in bundle_skills(bundle)} == {(1, 1)}

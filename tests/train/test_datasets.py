@@ -1,0 +1,87 @@
+"""Datasets from a tiny synthetic dataset written with write_trajectory (no simulator)."""
+
+import numpy as np
+import pytest
+import torch
+
+from pasta.data.storage import DatasetError
+from pasta.geometry.distances import chamfer_distance
+from pasta.train.datasets import TransitionSampler, pad_sets, split_trajectories, vae_clouds
+from pasta.train.demos import load_demonstrations
+from pasta.train.entities import PairChamfer, state_cloud
+from tests.train.conftest import ENTITY_POINTS
+from tests.train.synthetic_demos import POINTS, STEPS
+
+
+def test_demonstrations_hold_states_targets_and_skill_tools(training_data):
+    demos = training_data.demos
+    assert len(demos) == 10 and demos.skills[:2] == ("cut", "rearrange")
+    assert demos.points.shape == (10 * (STEPS + 1), POINTS, 3)
+    assert demos.target_state.tolist() == [i * (STEPS + 1) + STEPS for i in range(10)]
+    assert demos.tool_points[0].shape == (STEPS, 20, 3) and demos.tool_states[0].shape == (STEPS, 8)
+    # the cut tool is the knife (first 20 tool points), the rearrange tool the gripper (last 20, 0.1 higher)
+    assert demos.tool_points[1][:, :, 1].mean() > demos.tool_points[0][:, :, 1].mean() + 0.05
+    assert [len(np.unique(demos.labels[s])) for s in demos.target_state] == [2] * 10  # DBSCAN on targets
+
+
+def test_entity_tables_split_states_or_keep_whole_scenes(training_data, scene_data):
+    table = training_data.table
+    assert table.clouds.shape[1:] == (ENTITY_POINTS, 3)
+    assert [len(table.state_entities[s]) for s in range(3)] == [1, 1, 2]  # the cut splits at step 2
+    assert all(len(ids) == 1 for ids in scene_data.table.state_entities)
+    assert len(scene_data.table) == len(training_data.demos.points)
+
+
+def test_splits_are_by_trajectory_and_seeded(training_data):
+    demos = training_data.demos
+    train, test = split_trajectories(demos, 0.2, seed=42)
+    assert sorted(np.concatenate([train, test]).tolist()) == list(range(10)) and len(test) == 2
+    assert np.array_equal(split_trajectories(demos, 0.2, seed=42)[1], test)
+    clouds = vae_clouds(demos, training_data.table, test)
+    assert len(clouds) == sum(len(training_data.table.of_states(np.arange(demos.first_state[i],
+                                                                          demos.target_state[i] + 1)))
+                              for i in test)
+
+
+def test_feasibility_positives_are_filtered_to_the_skill_shape(cfg, training_data):
+    demos, table = training_data.demos, training_data.table
+    chamfer = PairChamfer(table)
+    sampler = TransitionSampler(demos, table, cfg.skills, np.arange(10), 5e-4, chamfer)
+    rng = np.random.default_rng(0)
+    assert sampler.count(0) == 5 * (STEPS - 1) and sampler.count(1) == 5 * (STEPS - 1)
+    cut = sampler.feasibility_positives(0, sampler.transitions[0], rng)
+    assert cut.obs and all(len(o) == 1 and len(g) == 2 for o, g in zip(cut.obs, cut.goal, strict=True))
+    rearrange = sampler.feasibility_positives(1, sampler.transitions[1], rng)
+    assert rearrange.obs and all(len(o) == 1 and len(g) == 1 for o, g in zip(rearrange.obs, rearrange.goal,
+                                                                              strict=True))
+    # the static slab is filtered out: the kept observation entity is always the moving one (label 0)
+    assert set(table.label[np.concatenate(rearrange.obs)].tolist()) == {0}
+    unfiltered = TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, chamfer)
+    found = unfiltered.feasibility_positives(1, unfiltered.transitions[1], rng)
+    assert all(len(o) == 2 and len(g) == 2 for o, g in zip(found.obs, found.goal, strict=True))
+
+
+def test_policy_samples_and_cost_pairs(cfg, training_data):
+    demos, table = training_data.demos, training_data.table
+    chamfer = PairChamfer(table)
+    sampler = TransitionSampler(demos, table, cfg.skills, np.arange(10), 5e-4, chamfer)
+    rng = np.random.default_rng(1)
+    samples = sampler.policy_samples(1, sampler.transitions[1], rng, limit=4)
+    assert samples is not None and len(samples) == 4
+    assert samples.obs_points.shape == (4, POINTS, 3) and samples.tool_points.shape == (4, 20, 3)
+    assert samples.actions.shape == (4, 10) and torch.all(samples.actions[:, :3] == 0)
+    pairs = sampler.cost_pairs(sampler.transitions[0][:6], rng)
+    assert len(pairs.a) == 12
+    sub = table.clouds[:, :200]
+    direct = chamfer_distance(sub[torch.from_numpy(pairs.a)], sub[torch.from_numpy(pairs.b)])
+    assert torch.allclose(pairs.chamfer, direct.float())
+    latents = torch.randn(len(table), 5)
+    u, mask = pad_sets([np.array([0]), np.array([1, 2])], latents)
+    assert u.shape == (2, 2, 5) and mask.tolist() == [[True, False], [True, True]]
+    cloud = state_cloud(demos, table, table.state_entities[3], 50, np.random.default_rng(0))
+    assert cloud.shape == (50, 3)
+
+
+def test_missing_or_foreign_dataset_is_refused(cfg, tmp_path):
+    with pytest.raises(DatasetError, match="index"):
+        load_demonstrations(tmp_path, cfg)
