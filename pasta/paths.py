@@ -2,7 +2,7 @@
 
 * ``PASTA_HOME`` (default ``<repo root>/.pasta_home``): datasets and checkpoints.
 * ``MLFLOW_TRACKING_URI`` (default ``sqlite:///<repo root>/mlflow.db``, absolute): run tracking.
-* ``<repo root>/reports``: generated tables and figures.
+* ``PASTA_REPORTS_DIR`` (default ``<repo root>/reports``): generated tables and figures.
 
 The repo root is the parent of the ``pasta`` package directory. Directories are created on demand.
 """
@@ -56,5 +56,6 @@ def checkpoint_dir(task: str, profile: str, run_name: str | None = None) -> Path
 
 
 def reports_dir() -> Path:
-    """Generated reports (markdown tables and PNG figures): ``<repo root>/reports``."""
-    return _mkdir(REPO_ROOT / "reports")
+    """Generated reports (markdown tables and PNG figures): ``$PASTA_REPORTS_DIR`` or ``<repo root>/reports``."""
+    env = os.environ.get("PASTA_REPORTS_DIR")
+    return _mkdir(Path(env).expanduser().resolve() if env else REPO_ROOT / "reports")

@@ -16,8 +16,9 @@ def prefect_server():
 
 @pytest.fixture
 def isolated_store(tmp_path, monkeypatch):
-    """PASTA_HOME and the MLflow sqlite store under the test's temporary folder."""
+    """PASTA_HOME, the reports and the MLflow sqlite store (artifacts beside it) under the test's temporary folder."""
     monkeypatch.setenv("PASTA_HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("PASTA_REPORTS_DIR", str(tmp_path / "reports"))
     uri = f"sqlite:///{tmp_path / 'mlflow.db'}"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     return tmp_path, uri
