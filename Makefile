@@ -1,17 +1,23 @@
 # Each target is a one-liner; read the script it calls for details.
-.PHONY: setup test demo bench lint ui report
+.PHONY: setup run test sim-demo bench lint ui report
 
 setup:
 	bash scripts/setup.sh
 
+# The main job: CutRearrange's whole pipeline (data, training, evaluation, report) at the smoke profile.
+run:
+	bash scripts/run.sh --task CutRearrange --profile smoke
+
 test:
 	bash scripts/test.sh
 
-demo: setup
+sim-demo: setup
 	.venv/bin/pasta sim-demo --task CutRearrange --profile small
 
 bench: setup
 	.venv/bin/python benchmarks/sim.py --quick
+	.venv/bin/python benchmarks/plan.py --quick
+	.venv/bin/python benchmarks/train.py --quick
 
 lint:
 	.venv/bin/ruff check pasta flows tests benchmarks
