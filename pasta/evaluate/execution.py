@@ -31,6 +31,7 @@ from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_act
 from pasta.evaluate.selection import attended_mask
 from pasta.geometry.distances import chamfer_distance
 from pasta.geometry.entities import resample
+from pasta.sim.engine import SimulationError
 from pasta.sim.envs.base import DoughEnv, Observation
 from pasta.sim.tool_points import world_sdf
 from pasta.train.bundle import TrainedModels
@@ -69,10 +70,15 @@ class StepRecord:
 
 @dataclass(frozen=True, eq=False)
 class Execution:
-    """Every executed step of a plan and the final observation."""
+    """Every executed step of a plan and the final observation.
+
+    ``failure`` names the skill whose simulation blew up (with the simulator's message: step and value);
+    that skill's effect is undone, the plan stops there and ``final`` is the state before the skill.
+    """
 
     steps: tuple[StepRecord, ...]
     final: Observation
+    failure: str | None = None
 
 
 def check_executor(executor: str) -> str:
@@ -157,12 +163,18 @@ def execute_plan(cfg: TaskConfig, bundle: TrainedModels, env: DoughEnv, plan: Pl
         centres = None if h == 1 else before[list(attention), latent_dim:].detach().cpu().numpy()
         mask = attended_mask(points, labels, attention, centres)
         target = np.concatenate([new_subgoals, points[~mask]])
-        place_tool_for_skill(env, skill, mask, target)
-        if executor == "scripted":
-            for action in scripted_actions(env, skill, target, mask):
-                env.step(action)
-        else:
-            _run_policy(env, bundle, skill, tool, h, np.flatnonzero(mask), new_subgoals, after[:n_out], rng)
-        env.settle(cfg.sim.settle_steps)
+        before_skill = env.get_state()
+        try:
+            place_tool_for_skill(env, skill, mask, target)
+            if executor == "scripted":
+                for action in scripted_actions(env, skill, target, mask):
+                    env.step(action)
+            else:
+                _run_policy(env, bundle, skill, tool, h, np.flatnonzero(mask), new_subgoals, after[:n_out], rng)
+            env.settle(cfg.sim.settle_steps)
+        except SimulationError as error:
+            env.set_state(before_skill)
+            return Execution(steps=tuple(records), final=env.observation(),
+                             failure=f"plan step {h} ({skill}): {error}")
         records.append(StepRecord(skill, everything, new_subgoals, mask, False, park_tool(env, tool)))
     return Execution(steps=tuple(records), final=env.observation())

@@ -51,10 +51,12 @@ def summary_metrics(rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     """Means over configurations and per-configuration values, under the contract's metric names.
 
     Each row needs ``config_id`` and the fields of ``AGGREGATED``; ``success`` counts as 0/1.
+    ``failed_configs`` counts the rows whose execution stopped early (a ``failure`` that is not None).
     """
     if not rows:
         raise ValueError("no evaluation results to summarise")
     metrics = {name: float(np.mean([float(r[field]) for r in rows])) for name, field in AGGREGATED.items()}
+    metrics["failed_configs"] = float(sum(r.get("failure") is not None for r in rows))
     for row in rows:
         for prefix, field in PER_CONFIGURATION.items():
             metrics[f"{prefix}_config_{int(row['config_id'])}"] = float(row[field])

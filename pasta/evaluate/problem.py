@@ -52,7 +52,8 @@ class EvaluationResult:
     """The outcome of one evaluation problem.
 
     ``attention``: per step, the plan's attended entity indices; ``skipped``: per step, whether the dough
-    already matched the subgoal; ``frames``: initial, each decoded subgoal set, reached, target.
+    already matched the subgoal; ``frames``: initial, each decoded subgoal set, reached, target;
+    ``failure``: why execution stopped early (a simulation that blew up), scored from the state before it.
     """
 
     config_id: int
@@ -68,6 +69,7 @@ class EvaluationResult:
     executor: str
     skipped: tuple[bool, ...]
     frames: tuple[Frame, ...]
+    failure: str | None = None
 
     def row(self) -> dict[str, Any]:
         """The table row (``tables/evaluation.json``)."""
@@ -75,7 +77,7 @@ class EvaluationResult:
             "config_id": self.config_id, "skills": list(self.skills), "performance": self.performance,
             "success": self.success, "planning_time_s": self.planning_time_s, "emd_initial": self.emd_initial,
             "emd_final": self.emd_final, "emd_planned_goal": self.emd_planned_goal,
-            "emd_reached_goal": self.emd_reached_goal,
+            "emd_reached_goal": self.emd_reached_goal, "failure": self.failure,
         }
 
 
@@ -133,4 +135,5 @@ def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels, problem: Evaluation
         executor=executor,
         skipped=tuple(step.skipped for step in execution.steps),
         frames=_frames(initial, execution, target),
+        failure=execution.failure,
     )

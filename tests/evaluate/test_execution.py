@@ -13,6 +13,7 @@ from pasta.evaluate.execution import already_reached, execute_plan
 from pasta.evaluate.policy_action import NonFiniteActionError, checked_action
 from pasta.models.vae import VAEConfig
 from pasta.plan.result import Plan
+from pasta.sim.engine import SimulationError
 from pasta.sim.envs import make_env
 from pasta.sim.tool_points import world_sdf
 from pasta.train.bundle import TrainedModels
@@ -132,3 +133,21 @@ def test_already_reached_needs_the_same_pieces_and_a_small_chamfer():
 def test_unknown_executor_is_refused(cfg, bundle):
     with pytest.raises(ValueError, match="'magic'.*policy.*scripted"):
         execute_plan(cfg, bundle, None, None, "magic", np.random.default_rng(0))
+
+
+def test_a_skill_that_blows_up_the_simulation_is_undone_and_reported(cfg, bundle, monkeypatch):
+    env, plan = cut_plan(cfg, bundle)
+    before = env.particles().copy()
+    real_step = env.step
+
+    def blow_up_on_third_step(action):
+        if env.step_count >= cfg.sim.settle_steps + 2:
+            raise SimulationError(f"simulation blew up at step {env.step_count}: non-finite particle state")
+        return real_step(action)
+
+    monkeypatch.setattr(env, "step", blow_up_on_third_step)
+    execution = execute_plan(cfg, bundle, env, plan, "scripted", np.random.default_rng(0))
+    assert execution.steps == ()
+    assert execution.failure is not None and execution.failure.startswith("plan step 1 (cut): simulation blew up")
+    np.testing.assert_array_equal(env.particles(), before)
+    np.testing.assert_array_equal(execution.final.dough_points, env.observation().dough_points)

@@ -46,9 +46,10 @@ def test_summary_metrics_uses_the_contract_names():
         {"config_id": 0, "performance": 0.9, "success": True, "planning_time_s": 2.0, "emd_planned_goal": 0.1,
          "emd_reached_goal": 0.02, "emd_initial": 0.3},
         {"config_id": 1, "performance": 0.5, "success": False, "planning_time_s": 4.0, "emd_planned_goal": 0.3,
-         "emd_reached_goal": 0.12, "emd_initial": 0.2},
+         "emd_reached_goal": 0.12, "emd_initial": 0.2, "failure": "plan step 2 (cut): simulation blew up"},
     ]
     metrics = summary_metrics(rows)
+    assert metrics["failed_configs"] == 1.0
     assert metrics["performance"] == pytest.approx(0.7)
     assert metrics["success_rate"] == pytest.approx(0.5)
     assert metrics["planning_time_s"] == pytest.approx(3.0)
