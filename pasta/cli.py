@@ -46,9 +46,13 @@ def _cmd_sim_demo(args: argparse.Namespace) -> int:
     return result if isinstance(result, int) else 0
 
 
-def _cmd_data(args: argparse.Namespace) -> int:
+def _prefect_defaults() -> None:
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+
+
+def _cmd_data(args: argparse.Namespace) -> int:
+    _prefect_defaults()
     data_flow = importlib.import_module("flows.data")
     summary = data_flow.run(args.task, profile=args.profile, method=args.method, workers=args.workers,
                             overrides=args.set, dask_address=args.dask_address, seed=args.seed)
@@ -57,8 +61,7 @@ def _cmd_data(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+    _prefect_defaults()
     train_flow = importlib.import_module("flows.train")
     summary = train_flow.run(args.task, profile=args.profile, variant=args.variant, method=args.method,
                              overrides=args.set, seed=args.seed, device=args.device)
@@ -67,8 +70,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+    _prefect_defaults()
     report_flow = importlib.import_module("flows.report")
     for path in report_flow.run(args.task):
         print(path)
@@ -76,18 +78,12 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+    _prefect_defaults()
     evaluate_flow = importlib.import_module("flows.evaluate")
     summary = evaluate_flow.run(args.task, profile=args.profile, variant=args.variant, seeds=args.seeds,
                                 executor=args.executor, overrides=args.set, experiment=args.experiment)
     print(json.dumps(summary, indent=1))
     return 0
-
-
-def _prefect_defaults() -> None:
-    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
 
 
 def _cmd_run(args: argparse.Namespace) -> int:

@@ -3,12 +3,7 @@
 from __future__ import annotations
 
 import pytest
-import torch
 
+from tests.threads import one_torch_thread
 
-@pytest.fixture(autouse=True)
-def _single_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+_single_thread = pytest.fixture(autouse=True)(one_torch_thread)

@@ -3,21 +3,16 @@
 from __future__ import annotations
 
 import pytest
-import torch
 
 from pasta.config import load
 from pasta.train.stages import load_training_data
+from tests.threads import one_torch_thread
 from tests.train.synthetic_demos import write_dataset
 
 ENTITY_POINTS = 64  # the tiny VAE's decoded size (tests/models/synthetic.tiny_model_config)
 
 
-@pytest.fixture(autouse=True)
-def _single_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+_single_thread = pytest.fixture(autouse=True)(one_torch_thread)
 
 
 @pytest.fixture(scope="session")
