@@ -12,11 +12,9 @@ of sample initial/target pairs.
 """
 
 import json
-import os
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -24,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 from prefect import flow, task
-from prefect.task_runners import ProcessPoolTaskRunner, TaskRunner
 from rich.progress import Progress
 
+from flows.runners import in_main_thread, task_runner
 from pasta import tracking
 from pasta.config import load
 from pasta.config.schema import TaskConfig
@@ -34,7 +32,6 @@ from pasta.data.configurations import generate_skill_problems, skill_problem, sp
 from pasta.data.demos import DemoResult, check_method, generate_demo
 from pasta.data.storage import DatasetError, DatasetIndex, read_trajectory
 from pasta.paths import data_dir
-from pasta.sim.runtime import THREADS_ENV
 
 
 def dataset_dir(task_name: str, profile: str, method: str) -> Path:
@@ -67,7 +64,7 @@ def make_demo(task_name: str, profile: str, overrides: tuple[str, ...], trajecto
     done = existing_result(path)
     if done is not None:
         return {**done, "reused": True}
-    if threading.current_thread() is not threading.main_thread():
+    if not in_main_thread():
         arguments = [task_name, profile, list(overrides), trajectory_id, method, out_dir, seed]
         subprocess.run([sys.executable, "-m", "flows.data", json.dumps(arguments)], check=True)
         made = existing_result(path)
@@ -193,25 +190,6 @@ def generate_data(task_name: str, profile: str = "smoke", method: str = "gbto", 
     summary["index"] = str(index_path)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
-
-
-def share_cores(threads: int) -> None:
-    """Process-pool initialiser: each worker gets its share of the cores (Taichi and torch)."""
-    os.environ[THREADS_ENV] = str(threads)
-    import torch
-
-    torch.set_num_threads(threads)
-
-
-def task_runner(workers: int, dask_address: str | None = None) -> TaskRunner:
-    """A process pool of ``workers`` on this machine, or a Dask cluster at ``dask_address``."""
-    if dask_address:
-        from prefect_dask import DaskTaskRunner
-
-        return DaskTaskRunner(address=dask_address)
-    workers = max(1, workers)
-    threads = max(1, (os.cpu_count() or 1) // workers)
-    return ProcessPoolTaskRunner(max_workers=workers, initializer=share_cores, initargs=(threads,))
 
 
 def run(task_name: str, profile: str = "smoke", method: str = "gbto", workers: int = 2,

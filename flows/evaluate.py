@@ -1,16 +1,20 @@
 """Prefect flow: plan and execute a task's test configurations with trained models, record them in MLflow.
 
     pasta evaluate --task CutRearrange --profile smoke [--variant pasta] [--executor scripted] [--seeds 0 1 2]
+                   [--workers 2 | --dask-address tcp://scheduler:8786]
 
 For every seed, one MLflow run (experiment ``pasta/<task>``, stage ``evaluate``) holds the aggregated
 and per-configuration metrics (``pasta.evaluate.metrics``), the table ``tables/evaluation.json`` and one
 image strip per configuration ``figures/plan_config_<i>.png``. The simulator runs in the flow's own
-thread (Taichi keeps one runtime per process; Prefect's thread pool is never used). The models come from
+thread, or with ``--workers N`` / ``--dask-address`` on a process pool or a Dask cluster (Taichi keeps
+one runtime per process; Prefect's thread pool is never used, see ``flows.runners``). The models come from
 ``pasta.train.locate.trained_models`` (CRS-Twice uses CRS's).
 """
 
 from __future__ import annotations
 
+import json
+import sys
 import tempfile
 import time
 from collections.abc import Sequence
@@ -20,6 +24,7 @@ import numpy as np
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
+from flows.runners import check_workers, in_main_thread, run_in_child_process, task_runner, write_child_result
 from pasta import tracking
 from pasta.config import load
 from pasta.config.schema import TaskConfig
@@ -35,6 +40,45 @@ def evaluate_configuration(cfg: TaskConfig, bundle: TrainedModels, problem: Eval
                            executor: str, settings: PlanSettings) -> EvaluationResult:
     """Plan and execute one configuration (called directly, so it runs in the flow's thread)."""
     return evaluate_problem(cfg, bundle, problem, seed, executor, settings)
+
+
+@task(task_run_name="evaluate-{task_name}-config{config_id}-s{seed}", cache_policy=NO_CACHE)
+def evaluate_configuration_apart(task_name: str, profile: str, variant: str, overrides: tuple[str, ...],
+                                 config_id: int, seed: int, executor: str) -> EvaluationResult:
+    """Plan and execute one configuration in a pool worker or on a Dask cluster.
+
+    The worker loads the config and the trained models itself (workers share ``$PASTA_HOME`` or the MLflow
+    store with the flow). In a Dask worker's thread the work moves to a child process (Taichi needs a main
+    thread).
+    """
+    if not in_main_thread():
+        return run_in_child_process("flows.evaluate", [task_name, profile, variant, list(overrides), config_id,
+                                                       seed, executor])
+    cfg = load(task_name, profile, list(overrides))
+    problem = evaluation_problems(cfg)[config_id]
+    bundle = trained_models(cfg.task, profile, variant)
+    return evaluate_problem(cfg, bundle, problem, seed, executor, PlanSettings.from_config(cfg))
+
+
+def evaluate_seeds(cfg: TaskConfig, profile: str, variant: str, overrides: Sequence[str], seeds: Sequence[int],
+                   executor: str, workers: int, dask_address: str | None) -> list[list[EvaluationResult]]:
+    """Every (seed, configuration) result, per seed in configuration order.
+
+    One worker without a Dask address runs them one by one in the flow's own thread; otherwise they fan out
+    to a process pool of ``workers`` or to the Dask cluster.
+    """
+    problems = evaluation_problems(cfg)
+    if workers == 1 and not dask_address:
+        bundle = trained_models(cfg.task, profile, variant)
+        settings = PlanSettings.from_config(cfg)
+        return [[evaluate_configuration(cfg, bundle, problem, seed, executor, settings) for problem in problems]
+                for seed in seeds]
+    with task_runner(workers, dask_address) as runner:
+        futures = [[runner.submit(evaluate_configuration_apart, {
+            "task_name": cfg.task, "profile": profile, "variant": variant, "overrides": tuple(overrides),
+            "config_id": index, "seed": seed, "executor": executor}) for index in range(len(problems))]
+            for seed in seeds]
+        return [[future.result() for future in row] for row in futures]
 
 
 def log_seed(cfg: TaskConfig, results: Sequence[EvaluationResult], *, profile: str, variant: str, seed: int,
@@ -56,27 +100,29 @@ def log_seed(cfg: TaskConfig, results: Sequence[EvaluationResult], *, profile: s
 @flow(name="evaluate", flow_run_name="evaluate-{task_name}-{profile}-{variant}")
 def evaluate(task_name: str, profile: str = "smoke", variant: str = "pasta", seeds: Sequence[int] | None = None,
              executor: str = "policy", parent_run_id: str | None = None, experiment: str = "main",
-             overrides: Sequence[str] = (), sweep_value: str | None = None) -> dict:
+             overrides: Sequence[str] = (), sweep_value: str | None = None, workers: int = 1,
+             dask_address: str | None = None) -> dict:
     """Evaluate the trained models of ``variant`` on the task's test configurations, one MLflow run per seed.
+
+    ``workers`` > 1 runs the (seed, configuration) pairs on a process pool, ``dask_address`` on a Dask
+    cluster (:func:`evaluate_seeds`).
 
     Returns the mean and standard deviation over seeds of the mean performance and the success rate, and the
     per-seed metrics and run ids.
     """
     check_executor(executor)
+    check_workers(workers)
     cfg = load(task_name, profile, list(overrides))
     seeds = list(cfg.eval.seeds if seeds is None else seeds)
     if not seeds:
         raise ValueError("no seeds to evaluate")
-    bundle = trained_models(cfg.task, profile, variant)
-    problems = evaluation_problems(cfg)
-    base_settings = PlanSettings.from_config(cfg)
     tags = {"pasta.experiment": experiment}
     if sweep_value is not None:
         tags["pasta.sweep_value"] = str(sweep_value)
     started = time.perf_counter()
     per_seed = []
-    for seed in seeds:
-        results = [evaluate_configuration(cfg, bundle, problem, seed, executor, base_settings) for problem in problems]
+    all_results = evaluate_seeds(cfg, profile, variant, overrides, seeds, executor, workers, dask_address)
+    for seed, results in zip(seeds, all_results, strict=True):
         run_id, metrics = log_seed(cfg, results, profile=profile, variant=variant, seed=seed, executor=executor,
                                    parent_run_id=parent_run_id, tags=tags)
         per_seed.append({"seed": seed, "mlflow_run_id": run_id, **metrics})
@@ -91,9 +137,18 @@ def evaluate(task_name: str, profile: str = "smoke", variant: str = "pasta", see
 
 
 def run(task_name: str, profile: str = "smoke", variant: str = "pasta", seeds: Sequence[int] | None = None,
-        executor: str = "policy", overrides: Sequence[str] = (), experiment: str = "main") -> dict:
+        executor: str = "policy", overrides: Sequence[str] = (), experiment: str = "main", workers: int = 1,
+        dask_address: str | None = None) -> dict:
     """The CLI's entry point: check the arguments, then run :func:`evaluate`."""
     check_executor(executor)
+    check_workers(workers)
     load(task_name, profile, list(overrides))  # refuse a bad task/profile/override before starting Prefect
     return evaluate(task_name, profile, variant, seeds=None if seeds is None else list(seeds), executor=executor,
-                    experiment=experiment, overrides=tuple(overrides))
+                    experiment=experiment, overrides=tuple(overrides), workers=workers, dask_address=dask_address)
+
+
+if __name__ == "__main__":  # one configuration in this process's main thread (see evaluate_configuration_apart)
+    arguments, result_file = json.loads(sys.argv[1]), sys.argv[2]
+    name, prof, var, over, config, run_seed, how = arguments
+    write_child_result(evaluate_configuration_apart.fn(name, prof, var, tuple(over), config, run_seed, how),
+                       result_file)

@@ -17,9 +17,10 @@ from pathlib import Path
 
 from prefect import flow
 
-from flows.data import generate_data, task_runner
+from flows.data import generate_data
 from flows.evaluate import evaluate
 from flows.report import report
+from flows.runners import check_workers, task_runner
 from flows.train import train
 from pasta import tracking
 from pasta.config import load
@@ -59,17 +60,23 @@ def train_unless_done(task_name: str, profile: str, variant: str, method: str, o
 
 @flow(name="pipeline", flow_run_name="pipeline-{task_name}-{profile}-{variant}")
 def pipeline(task_name: str, profile: str = "smoke", variant: str = "pasta", method: str = "gbto",
-             workers: int = 2, executor: str = "policy", overrides: Sequence[str] = ()) -> dict:
-    """Data, training, evaluation and report of one task; returns where things went and the scores."""
+             workers: int = 2, executor: str = "policy", overrides: Sequence[str] = (),
+             dask_address: str | None = None) -> dict:
+    """Data, training, evaluation and report of one task; returns where things went and the scores.
+
+    The demos and the evaluations run on a process pool of ``workers``, or on the Dask cluster at
+    ``dask_address``; training runs in this process.
+    """
     started = time.perf_counter()
     cfg = load(task_name, profile, list(overrides))
     source = models_task(cfg.task)
-    data_summary = generate_data.with_options(task_runner=task_runner(workers))(
+    data_summary = generate_data.with_options(task_runner=task_runner(workers, dask_address))(
         source, profile, method, tuple(overrides), 0)
     train_summary = train_unless_done(source, profile, variant, method, overrides)
     seeds = pending_seeds(cfg.task, profile, variant, cfg.eval.seeds, overrides, "main")
     evaluation = (evaluate(cfg.task, profile, variant, seeds=seeds, executor=executor, experiment="main",
-                           overrides=tuple(overrides)) if seeds else {"skipped": True})
+                           overrides=tuple(overrides), workers=workers, dask_address=dask_address)
+                  if seeds else {"skipped": True})
     report_paths = report(cfg.task)
     return {
         "task": cfg.task,
@@ -85,11 +92,14 @@ def pipeline(task_name: str, profile: str = "smoke", variant: str = "pasta", met
 
 
 def run(task_names: Sequence[str], profile: str = "smoke", variant: str = "pasta", method: str = "gbto",
-        workers: int = 2, executor: str = "policy", overrides: Sequence[str] = ()) -> list[dict]:
+        workers: int = 2, executor: str = "policy", overrides: Sequence[str] = (),
+        dask_address: str | None = None) -> list[dict]:
     """The CLI's entry point: the pipeline of each task in turn, then where to look."""
     for name in task_names:
         load(name, profile, list(overrides))  # refuse a bad task/profile/override before starting anything
-    results = [pipeline(name, profile, variant, method, workers, executor, tuple(overrides)) for name in task_names]
+    check_workers(workers)
+    results = [pipeline(name, profile, variant, method, workers, executor, tuple(overrides), dask_address)
+               for name in task_names]
     print(where_to_look(results))
     return results
 

@@ -21,6 +21,7 @@ from prefect import flow
 from flows.evaluate import evaluate
 from flows.pipeline import pending_seeds
 from flows.report import report
+from flows.runners import check_workers
 from pasta.config import load
 
 SWEEPS = ("samples", "horizon", "distractors")
@@ -49,8 +50,13 @@ def sweep_points(sweep: str, profile: str, overrides: Sequence[str] = ()) -> lis
 
 @flow(name="sweeps", flow_run_name="sweeps-{profile}")
 def sweeps(profile: str = "smoke", only: Sequence[str] = SWEEPS, variant: str = "pasta",
-           seeds: Sequence[int] = SWEEP_SEEDS, executor: str = "policy", overrides: Sequence[str] = ()) -> dict:
-    """Evaluate every sweep point (the models must be trained: ``pasta run`` first)."""
+           seeds: Sequence[int] = SWEEP_SEEDS, executor: str = "policy", overrides: Sequence[str] = (),
+           workers: int = 2, dask_address: str | None = None) -> dict:
+    """Evaluate every sweep point (the models must be trained: ``pasta run`` first).
+
+    Each point's (seed, configuration) pairs run on a process pool of ``workers`` or on the Dask cluster at
+    ``dask_address``.
+    """
     results: dict[str, dict] = {}
     for sweep in only:
         experiment = f"sweep_{sweep}"
@@ -58,17 +64,20 @@ def sweeps(profile: str = "smoke", only: Sequence[str] = SWEEPS, variant: str = 
             todo = pending_seeds(task_name, profile, variant, seeds, point_overrides, experiment, value)
             results[f"{experiment}={value}"] = (
                 evaluate(task_name, profile, variant, seeds=todo, executor=executor, experiment=experiment,
-                         sweep_value=value, overrides=point_overrides) if todo else {"skipped": True})
+                         sweep_value=value, overrides=point_overrides, workers=workers, dask_address=dask_address)
+                if todo else {"skipped": True})
     for task_name in sorted({task for sweep in only for task, _, _ in sweep_points(sweep, profile, overrides)}):
         report(task_name)
     return results
 
 
 def run(profile: str = "smoke", only: Sequence[str] | None = None, executor: str = "policy",
-        overrides: Sequence[str] = ()) -> dict:
+        overrides: Sequence[str] = (), workers: int = 2, dask_address: str | None = None) -> dict:
     """The CLI's entry point: check the sweep names and configs, then run :func:`sweeps`."""
+    check_workers(workers)
     chosen = tuple(SWEEPS if only is None else only)
     for sweep in chosen:
         for task_name, _, point_overrides in sweep_points(sweep, profile, overrides):
             load(task_name, profile, list(point_overrides))
-    return sweeps(profile, chosen, executor=executor, overrides=tuple(overrides))
+    return sweeps(profile, chosen, executor=executor, overrides=tuple(overrides), workers=workers,
+                  dask_address=dask_address)

@@ -81,7 +81,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     _prefect_defaults()
     evaluate_flow = importlib.import_module("flows.evaluate")
     summary = evaluate_flow.run(args.task, profile=args.profile, variant=args.variant, seeds=args.seeds,
-                                executor=args.executor, overrides=args.set, experiment=args.experiment)
+                                executor=args.executor, overrides=args.set, experiment=args.experiment,
+                                workers=args.workers, dask_address=args.dask_address)
     print(json.dumps(summary, indent=1))
     return 0
 
@@ -94,7 +95,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     pipeline = importlib.import_module("flows.pipeline")
     tasks = pipeline.ALL_TASKS if args.all else (args.task,)
     pipeline.run(tasks, profile=args.profile, variant=args.variant, method=args.method, workers=args.workers,
-                 executor=args.executor, overrides=args.set)
+                 executor=args.executor, overrides=args.set, dask_address=args.dask_address)
     return 0
 
 
@@ -102,7 +103,8 @@ def _cmd_ablations(args: argparse.Namespace) -> int:
     _prefect_defaults()
     ablations = importlib.import_module("flows.ablations")
     results = ablations.run(args.task, profile=args.profile, variants=args.variants, method=args.method,
-                            workers=args.workers, executor=args.executor, overrides=args.set)
+                            workers=args.workers, executor=args.executor, overrides=args.set,
+                            dask_address=args.dask_address)
     print(json.dumps(results, indent=1, default=str))
     return 0
 
@@ -110,15 +112,23 @@ def _cmd_ablations(args: argparse.Namespace) -> int:
 def _cmd_sweeps(args: argparse.Namespace) -> int:
     _prefect_defaults()
     sweeps = importlib.import_module("flows.sweeps")
-    results = sweeps.run(profile=args.profile, only=args.only, executor=args.executor, overrides=args.set)
+    results = sweeps.run(profile=args.profile, only=args.only, executor=args.executor, overrides=args.set,
+                         workers=args.workers, dask_address=args.dask_address)
     print(json.dumps(results, indent=1, default=str))
     return 0
+
+
+def _add_worker_options(parser: argparse.ArgumentParser, workers: int = 2) -> None:
+    parser.add_argument("--workers", type=int, default=workers,
+                        help=f"worker processes for the simulations: demos and evaluations (default {workers})")
+    parser.add_argument("--dask-address", default=None, metavar="ADDRESS",
+                        help="run the simulations on this Dask scheduler (tcp://host:8786) instead")
 
 
 def _add_run_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", default="gbto", choices=("gbto", "scripted"),
                         help="how demonstrations are made (default gbto)")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes for the data (default 2)")
+    _add_worker_options(parser)
     parser.add_argument("--executor", default="policy", choices=("policy", "scripted"),
                         help="run the planned skills with the learned policies or the scripted skills")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
@@ -149,8 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
     data = sub.add_parser("data", help="generate a task's demonstration dataset (Prefect flow, MLflow run)")
     _add_task_profile(data)
     data.add_argument("--method", default="gbto", help="gbto (scripted warm start + optimisation) or scripted")
-    data.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
-    data.add_argument("--dask-address", default=None, help="run the demos on this Dask scheduler instead")
+    _add_worker_options(data)
     data.add_argument("--seed", type=int, default=0)
     data.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     data.set_defaults(func=_cmd_data)
@@ -175,6 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
                           help="run the skills with the learned policies or the scripted skills")
     evaluate.add_argument("--seeds", type=int, nargs="+", default=None, help="seeds (default: cfg.eval.seeds)")
     evaluate.add_argument("--experiment", default="main", help="pasta.experiment tag (default main)")
+    _add_worker_options(evaluate, workers=1)
     evaluate.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     evaluate.set_defaults(func=_cmd_evaluate)
 
@@ -199,6 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="which sweeps (default: all)")
     sweeps.add_argument("--executor", default="policy", choices=("policy", "scripted"),
                         help="run the planned skills with the learned policies or the scripted skills")
+    _add_worker_options(sweeps)
     sweeps.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     sweeps.set_defaults(func=_cmd_sweeps)
     return parser
