@@ -1,12 +1,13 @@
 """One report: markdown tables and PNG figures for a task (or the summary of all tasks), from runs alone.
 
-A report is a pure function of the runs DataFrame (and the latent-space artifacts it names), with no
-time stamps, so a report rebuilt from MLflow equals the one written when the runs finished. Files are
+A report is a pure function of the runs DataFrame (and the latent-space and plan-strip artifacts it
+names), with no time stamps, so a report rebuilt from MLflow equals the one written when the runs finished. Files are
 written atomically (temp file, rename) and figures of an earlier report that no longer belong are removed.
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,7 @@ REPORT_FILE = "report.md"
 PROFILE_ORDER = tuple(reversed(PROFILE_NAMES))  # paper, small, smoke: the largest first
 # (variant, figure label) of the latent-space figures: Fig. 3 is PASTA's, Fig. 4 Flat3D's.
 LATENT_FIGURES = (("pasta", "Fig. 3"), ("flat3d", "Fig. 4"))
+EVALUATION_TABLE = "tables/evaluation.json"  # logged by the evaluate flow, one row per configuration
 
 FetchArtifact = Callable[[str, str], bytes | None]  # (run_id, artifact path) -> file bytes or None
 
@@ -72,11 +74,48 @@ def _latent_section(runs: pd.DataFrame, task: str, profile: str, fetch: FetchArt
     return lines, pngs
 
 
+def best_executed_plan(ev: pd.DataFrame, task: str, fetch: FetchArtifact) -> tuple[str, dict, bytes] | None:
+    """The image strip of the best-scoring configuration of ``task``'s main PASTA evaluation, lowest seed.
+
+    ``ev``: one profile's rows of :func:`evaluation_runs`. Returns (run id, that configuration's table row,
+    the PNG), or None where there is no such run or its artifacts are missing.
+    """
+    rows = ev[(ev["task"] == task) & (ev["variant"] == "pasta") & (ev["experiment"] == "main")
+              & (ev["sweep_value"] == "")]
+    if rows.empty:
+        return None
+    first = rows.assign(_seed=pd.to_numeric(rows["seed"], errors="coerce")).sort_values(["_seed", "run_id"]).iloc[0]
+    table = fetch(first["run_id"], EVALUATION_TABLE)
+    if table is None:
+        return None
+    configurations = json.loads(table)
+    if not configurations:
+        return None
+    best = max(configurations, key=lambda row: (row["performance"], -row["config_id"]))
+    strip = fetch(first["run_id"], f"figures/plan_config_{best['config_id']}.png")
+    return None if strip is None else (str(first["run_id"]), best, strip)
+
+
+def _plan_section(ev: pd.DataFrame, task: str, profile: str, fetch: FetchArtifact | None
+                  ) -> tuple[list[str], dict[str, bytes]]:
+    lines = [f"### An executed plan ({task})", ""]
+    found = best_executed_plan(ev, task, fetch) if fetch else None
+    if found is None:
+        return [*lines, f"{tables.NOT_RUN}: no finished main `pasta` evaluation of {task} with its strips.", ""], {}
+    run_id, row, strip = found
+    name = f"executed_plan_{task}_{profile}.png"
+    caption = (f"Initial state, the decoded subgoals of `{' -> '.join(row['skills'])}`, the reached state over "
+               f"the target, and the target: configuration {row['config_id']}, the best of its seed "
+               f"(performance {row['performance']:.3f}), evaluate run `{run_id}`.")
+    return [*lines, f"![executed plan of {task}]({name})", "", caption, ""], {name: strip}
+
+
 def build_report(subject: str, runs: pd.DataFrame, fetch_artifact: FetchArtifact | None = None) -> Report:
     """The report of ``subject`` (a task name or :data:`SUMMARY`) from MLflow runs of any stages.
 
     ``runs``: rows as ``mlflow.search_runs`` returns them (tags ``tags.pasta.*``, ``metrics.*``, ``status``,
-    ``start_time``, ``run_id``). ``fetch_artifact(run_id, path)`` supplies the latent-space PNG of a train run.
+    ``start_time``, ``run_id``). ``fetch_artifact(run_id, path)`` supplies artifacts: the latent-space PNG of a
+    train run, the table and plan strips of an evaluate run (an executed plan; CRS's in the summary).
     """
     tasks = subject_tasks(subject)
     ev_all = evaluation_runs(runs)
@@ -102,6 +141,10 @@ def build_report(subject: str, runs: pd.DataFrame, fetch_artifact: FetchArtifact
                     pngs[f"{name}_{profile}.png"] = png
                     lines += [f"![{name}]({name}_{profile}.png)", ""]
         if profile:
+            plan_task = "CRS" if subject == SUMMARY else subject
+            plan_lines, plan_pngs = _plan_section(ev, plan_task, profile, fetch_artifact)
+            lines += plan_lines
+            pngs.update(plan_pngs)
             latent_task = "CutRearrange" if subject == SUMMARY else subject
             latent_lines, latent_pngs = _latent_section(runs, latent_task, profile, fetch_artifact)
             lines += latent_lines

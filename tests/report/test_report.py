@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import time
 
@@ -143,10 +144,18 @@ def test_missing_runs_give_not_run_rows_not_errors(tmp_path):
 
 def test_report_is_deterministic_and_replaces_its_old_files(store, tmp_path):
     latent = {store["new_train"]: b"new latent png", store["old_train"]: b"old latent png"}
+    ev = evaluation_runs(store["runs"])
+    main_seed0 = ev[(ev["experiment"] == "main") & (ev["seed"] == "0")]["run_id"].item()
+    evaluation = {"tables/evaluation.json": json.dumps([
+        {"config_id": 0, "skills": ["cut", "rearrange"], "performance": 0.3},
+        {"config_id": 1, "skills": ["rearrange", "cut"], "performance": 0.8},
+        {"config_id": 2, "skills": ["cut", "cut"], "performance": 0.8}]).encode(),
+        "figures/plan_config_1.png": b"strip of configuration 1"}
 
     def fetch(run_id, path):
-        assert path == "figures/latent_space.png"
-        return latent.get(run_id)
+        if path == "figures/latent_space.png":
+            return latent.get(run_id)
+        return evaluation.get(path) if run_id == main_seed0 else None
 
     first = write_report("CutRearrange", store["runs"], tmp_path / "a", fetch)
     again = write_report("CutRearrange", store["runs"], tmp_path / "b", fetch)
@@ -154,14 +163,18 @@ def test_report_is_deterministic_and_replaces_its_old_files(store, tmp_path):
     assert [p.read_bytes() for p in first] == [p.read_bytes() for p in again]
     names = {p.name for p in first}
     assert {"report.md", "fig2a_planning_time_smoke.png", "fig2b_performance_smoke.png",
-            "latent_space_pasta_smoke.png"} == names
+            "latent_space_pasta_smoke.png", "executed_plan_CutRearrange_smoke.png"} == names
     folder = tmp_path / "a" / "CutRearrange"
     assert (folder / "latent_space_pasta_smoke.png").read_bytes() == b"new latent png"
+    # The best configuration of the lowest main seed (ties go to the lower configuration id).
+    assert (folder / "executed_plan_CutRearrange_smoke.png").read_bytes() == b"strip of configuration 1"
     assert (folder / "fig2a_planning_time_smoke.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     markdown = (folder / "report.md").read_text()
     for image in re.findall(r"!\[[^]]*\]\(([^)]+)\)", markdown):
         assert (folder / image).exists(), image
     assert "no finished `flat3d` train run" in markdown
+    assert "`rearrange -> cut`" in markdown and "configuration 1, the best of its seed" in markdown
+    assert main_seed0 in markdown
 
     without_sweeps = store["runs"][store["runs"]["tags.pasta.experiment"] != "sweep_samples"]
     write_report("CutRearrange", without_sweeps, tmp_path / "a")
