@@ -47,15 +47,22 @@ def planned_goal_distance(decoded_final: np.ndarray, target_points: np.ndarray, 
     return earth_movers_distance(planned, target_points, rng=np.random.default_rng(seed))
 
 
+def _mean_of_known(values: Sequence[float]) -> float:
+    """The mean of the finite values (a configuration that was not planned has no planned-goal EMD); NaN if none."""
+    known = [v for v in values if np.isfinite(v)]
+    return float(np.mean(known)) if known else float("nan")
+
+
 def summary_metrics(rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     """Means over configurations and per-configuration values, under the contract's metric names.
 
     Each row needs ``config_id`` and the fields of ``AGGREGATED``; ``success`` counts as 0/1.
-    ``failed_configs`` counts the rows whose execution stopped early (a ``failure`` that is not None).
+    ``failed_configs`` counts the rows whose execution stopped early or never started (a ``failure`` that is
+    not None). Means skip values that are NaN.
     """
     if not rows:
         raise ValueError("no evaluation results to summarise")
-    metrics = {name: float(np.mean([float(r[field]) for r in rows])) for name, field in AGGREGATED.items()}
+    metrics = {name: _mean_of_known([float(r[field]) for r in rows]) for name, field in AGGREGATED.items()}
     metrics["failed_configs"] = float(sum(r.get("failure") is not None for r in rows))
     for row in rows:
         for prefix, field in PER_CONFIGURATION.items():

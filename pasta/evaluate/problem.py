@@ -11,6 +11,7 @@ the goal's), executes the plan and scores the final observation.
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -25,7 +26,7 @@ from pasta.evaluate.encoding import encode_scene
 from pasta.evaluate.execution import Execution, check_executor, decode_set, execute_plan
 from pasta.evaluate.metrics import planned_goal_distance, shape_distance
 from pasta.geometry.distances import is_success, normalised_performance
-from pasta.plan import Plan, PlanSettings, plan, plan_receding_horizon
+from pasta.plan import NoSkillSequenceError, Plan, PlanSettings, plan, plan_receding_horizon
 from pasta.sim.envs import make_env
 from pasta.sim.envs.base import Observation
 from pasta.train.bundle import TrainedModels
@@ -100,9 +101,33 @@ def _frames(initial: Observation, execution: Execution, target: np.ndarray) -> t
     return tuple(frames)
 
 
+def _unplanned(cfg: TaskConfig, problem: EvaluationProblem, initial: Observation, settled: Observation,
+               target: np.ndarray, emd_initial: float, executor: str, seed: int, planning_time_s: float,
+               error: NoSkillSequenceError) -> EvaluationResult:
+    """The result of a configuration the planner has no skill sequence for: scored as the dough lies."""
+    emd_final = shape_distance(settled.dough_points, problem.target, seed)
+    performance = float(normalised_performance(emd_initial, emd_final))
+    return EvaluationResult(
+        config_id=problem.config_id, skills=(), attention=(), performance=performance,
+        success=bool(is_success(performance, cfg.eval.success_threshold)), planning_time_s=planning_time_s,
+        emd_initial=emd_initial, emd_final=emd_final, emd_planned_goal=float("nan"), emd_reached_goal=emd_final,
+        executor=executor, skipped=(),
+        frames=(Frame("initial", initial.dough_points, tool_points=initial.tool_points),
+                Frame("reached (not planned)", settled.dough_points, target_points=target,
+                      tool_points=settled.tool_points),
+                Frame("target", target)),
+        failure=f"planning: {error}",
+    )
+
+
 def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, seed: int,
                      executor: str, settings: PlanSettings) -> EvaluationResult:
-    """Plan and execute one problem; ``seed`` replaces ``settings.seed`` and seeds every resampling."""
+    """Plan and execute one problem; ``seed`` replaces ``settings.seed`` and seeds every resampling.
+
+    A problem the planner has no skill sequence for (the observation's entity count cannot reach the
+    goal's with the task's skills in the horizon) is not executed: its ``failure`` says why, it is scored
+    as the dough lies, and ``emd_planned_goal`` is NaN.
+    """
     check_executor(executor)
     if problem.task != cfg.task:
         raise ValueError(f"problem {problem.config_id} is a {problem.task} problem, the config is {cfg.task}")
@@ -116,7 +141,12 @@ def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels, problem: Evaluation
     settled = env.settle(cfg.sim.settle_steps)
     obs_scene = encode_scene(cfg, bundle, settled.dough_points, rng)
     goal_scene = encode_scene(cfg, bundle, target, rng)
-    the_plan = make_plan(cfg, bundle, problem, obs_scene.latents, goal_scene.latents, settings)
+    started = time.perf_counter()
+    try:
+        the_plan = make_plan(cfg, bundle, problem, obs_scene.latents, goal_scene.latents, settings)
+    except NoSkillSequenceError as error:
+        return _unplanned(cfg, problem, initial, settled, target, emd_initial, executor, seed,
+                          time.perf_counter() - started, error)
     execution = execute_plan(cfg, bundle, env, the_plan, executor, rng)
 
     emd_final = shape_distance(execution.final.dough_points, problem.target, seed)

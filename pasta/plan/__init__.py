@@ -10,7 +10,7 @@ from pasta.plan.matching import best_matching, matched_pair_cost
 from pasta.plan.planner import plan, plan_with
 from pasta.plan.receding import plan_receding_horizon, plan_receding_horizon_with
 from pasta.plan.result import Plan
-from pasta.plan.sequences import SkillSpec, enumerate_sequences, resolve_sequence, set_sizes
+from pasta.plan.sequences import NoSkillSequenceError, SkillSpec, enumerate_sequences, resolve_sequence, set_sizes
 from pasta.plan.settings import DEFAULT_HALVING, PlanSettings
 
 __all__ = [
@@ -23,6 +23,7 @@ __all__ = [
     "best_matching",
     "bundle_functions",
     "bundle_skills",
+    "NoSkillSequenceError",
     "enumerate_sequences",
     "frozen_parameters",
     "matched_pair_cost",

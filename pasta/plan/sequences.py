@@ -6,7 +6,7 @@ import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["SkillSpec", "enumerate_sequences", "resolve_sequence", "set_sizes"]
+__all__ = ["NoSkillSequenceError", "SkillSpec", "enumerate_sequences", "resolve_sequence", "set_sizes"]
 
 
 @dataclass(frozen=True)
@@ -38,6 +38,10 @@ def set_sizes(sequence: Sequence[SkillSpec], k_obs: int) -> tuple[int, ...]:
     return tuple(sizes)
 
 
+class NoSkillSequenceError(ValueError):
+    """No sequence of the task's skills takes the observed entity count to the goal's in the horizon."""
+
+
 def enumerate_sequences(skills: Sequence[SkillSpec], horizon: int, k_obs: int, k_goal: int
                         ) -> list[tuple[SkillSpec, ...]]:
     """All sequences of ``horizon`` skills whose net change ``sum(n_out - n_in)`` is ``k_goal - k_obs``.
@@ -46,7 +50,7 @@ def enumerate_sequences(skills: Sequence[SkillSpec], horizon: int, k_obs: int, k
     entities than the set holds at some step is left out.
 
     Raises:
-        ValueError: naming the counts and the skills when no sequence qualifies.
+        NoSkillSequenceError: naming the counts and the skills when no sequence qualifies.
     """
     if horizon < 1:
         raise ValueError(f"horizon must be >= 1, got {horizon}")
@@ -63,7 +67,7 @@ def enumerate_sequences(skills: Sequence[SkillSpec], horizon: int, k_obs: int, k
         found.append(sequence)
     if not found:
         described = ", ".join(f"{s.name} ({s.n_in}->{s.n_out})" for s in skills)
-        raise ValueError(f"no skill sequence of horizon {horizon} takes {k_obs} entities to {k_goal} "
+        raise NoSkillSequenceError(f"no skill sequence of horizon {horizon} takes {k_obs} entities to {k_goal} "
                          f"(net change {k_goal - k_obs:+d}); skills: {described}")
     return found
 

@@ -58,5 +58,20 @@ def test_summary_metrics_uses_the_contract_names():
     assert metrics["emd_initial"] == pytest.approx(0.25)
     assert metrics["performance_config_1"] == 0.5 and metrics["success_config_0"] == 1.0
     assert metrics["planning_time_s_config_0"] == 2.0
+
+
+def test_summary_means_skip_the_planned_goal_of_an_unplanned_configuration():
+    rows = [
+        {"config_id": 0, "performance": 0.4, "success": False, "planning_time_s": 2.0, "emd_planned_goal": 0.1,
+         "emd_reached_goal": 0.02, "emd_initial": 0.3},
+        {"config_id": 1, "performance": 0.0, "success": False, "planning_time_s": 0.0,
+         "emd_planned_goal": float("nan"), "emd_reached_goal": 0.2, "emd_initial": 0.2,
+         "failure": "planning: no skill sequence of horizon 2 takes 2 entities to 1"},
+    ]
+    metrics = summary_metrics(rows)
+    assert metrics["emd_planned_goal"] == pytest.approx(0.1)
+    assert metrics["performance"] == pytest.approx(0.2) and metrics["failed_configs"] == 1.0
+    only_unplanned = summary_metrics(rows[1:])
+    assert np.isnan(only_unplanned["emd_planned_goal"])
     with pytest.raises(ValueError, match="no evaluation results"):
         summary_metrics([])

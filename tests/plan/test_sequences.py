@@ -3,7 +3,7 @@ from __future__ import annotations
 import pytest
 
 from pasta.config import load
-from pasta.plan import SkillSpec, enumerate_sequences, resolve_sequence, set_sizes
+from pasta.plan import NoSkillSequenceError, SkillSpec, enumerate_sequences, resolve_sequence, set_sizes
 
 
 def _skills(task: str) -> tuple[SkillSpec, ...]:
@@ -31,7 +31,7 @@ def test_sequences_that_run_out_of_entities_are_left_out():
 
 
 def test_no_matching_sequence_names_the_counts():
-    with pytest.raises(ValueError, match=r"takes 1 entities to 5 \(net change \+4\).*cut \(1->2\)"):
+    with pytest.raises(NoSkillSequenceError, match=r"takes 1 entities to 5 \(net change \+4\).*cut \(1->2\)"):
         enumerate_sequences(_skills("CutRearrange"), 3, 1, 5)
 
 
