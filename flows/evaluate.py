@@ -28,7 +28,7 @@ from flows.runners import check_workers, in_main_thread, run_in_child_process, t
 from pasta import tracking
 from pasta.config import load
 from pasta.config.schema import TaskConfig
-from pasta.data.configurations import EvaluationProblem, evaluation_problems
+from pasta.data.configurations import EvaluationProblem, evaluation_problem, evaluation_problems
 from pasta.evaluate import EvaluationResult, check_executor, evaluate_problem, render_result_strip, summary_metrics
 from pasta.plan import PlanSettings
 from pasta.train.bundle import TrainedModels
@@ -55,9 +55,9 @@ def evaluate_configuration_apart(task_name: str, profile: str, variant: str, ove
         return run_in_child_process("flows.evaluate", [task_name, profile, variant, list(overrides), config_id,
                                                        seed, executor])
     cfg = load(task_name, profile, list(overrides))
-    problem = evaluation_problems(cfg)[config_id]
     bundle = trained_models(cfg.task, profile, variant)
-    return evaluate_problem(cfg, bundle, problem, seed, executor, PlanSettings.from_config(cfg))
+    return evaluate_problem(cfg, bundle, evaluation_problem(cfg, config_id), seed, executor,
+                            PlanSettings.from_config(cfg))
 
 
 def evaluate_seeds(cfg: TaskConfig, profile: str, variant: str, overrides: Sequence[str], seeds: Sequence[int],
@@ -67,8 +67,8 @@ def evaluate_seeds(cfg: TaskConfig, profile: str, variant: str, overrides: Seque
     One worker without a Dask address runs them one by one in the flow's own thread; otherwise they fan out
     to a process pool of ``workers`` or to the Dask cluster.
     """
-    problems = evaluation_problems(cfg)
     if workers == 1 and not dask_address:
+        problems = evaluation_problems(cfg)
         bundle = trained_models(cfg.task, profile, variant)
         settings = PlanSettings.from_config(cfg)
         return [[evaluate_configuration(cfg, bundle, problem, seed, executor, settings) for problem in problems]
@@ -76,7 +76,7 @@ def evaluate_seeds(cfg: TaskConfig, profile: str, variant: str, overrides: Seque
     with task_runner(workers, dask_address) as runner:
         futures = [[runner.submit(evaluate_configuration_apart, {
             "task_name": cfg.task, "profile": profile, "variant": variant, "overrides": tuple(overrides),
-            "config_id": index, "seed": seed, "executor": executor}) for index in range(len(problems))]
+            "config_id": index, "seed": seed, "executor": executor}) for index in range(cfg.data.n_eval_configs)]
             for seed in seeds]
         return [[future.result() for future in row] for row in futures]
 

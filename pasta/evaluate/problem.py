@@ -90,34 +90,16 @@ def make_plan(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem
     return plan(bundle, obs, goal, cfg.plan.horizon or cfg.horizon, settings)
 
 
-def _frames(initial: Observation, execution: Execution, target: np.ndarray) -> tuple[Frame, ...]:
+def _frames(initial: Observation, execution: Execution, target: np.ndarray, reached: str = "reached"
+            ) -> tuple[Frame, ...]:
     frames = [Frame("initial", initial.dough_points, tool_points=initial.tool_points)]
     for h, step in enumerate(execution.steps, start=1):
         note = " (skipped)" if step.skipped else ""
         frames.append(Frame(f"subgoal {h}: {step.skill}{note}", step.subgoal_points))
     final = execution.final
-    frames.append(Frame("reached", final.dough_points, target_points=target, tool_points=final.tool_points))
+    frames.append(Frame(reached, final.dough_points, target_points=target, tool_points=final.tool_points))
     frames.append(Frame("target", target))
     return tuple(frames)
-
-
-def _unplanned(cfg: TaskConfig, problem: EvaluationProblem, initial: Observation, settled: Observation,
-               target: np.ndarray, emd_initial: float, executor: str, seed: int, planning_time_s: float,
-               error: NoSkillSequenceError) -> EvaluationResult:
-    """The result of a configuration the planner has no skill sequence for: scored as the dough lies."""
-    emd_final = shape_distance(settled.dough_points, problem.target, seed)
-    performance = float(normalised_performance(emd_initial, emd_final))
-    return EvaluationResult(
-        config_id=problem.config_id, skills=(), attention=(), performance=performance,
-        success=bool(is_success(performance, cfg.eval.success_threshold)), planning_time_s=planning_time_s,
-        emd_initial=emd_initial, emd_final=emd_final, emd_planned_goal=float("nan"), emd_reached_goal=emd_final,
-        executor=executor, skipped=(),
-        frames=(Frame("initial", initial.dough_points, tool_points=initial.tool_points),
-                Frame("reached (not planned)", settled.dough_points, target_points=target,
-                      tool_points=settled.tool_points),
-                Frame("target", target)),
-        failure=f"planning: {error}",
-    )
 
 
 def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, seed: int,
@@ -145,25 +127,27 @@ def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels, problem: Evaluation
     try:
         the_plan = make_plan(cfg, bundle, problem, obs_scene.latents, goal_scene.latents, settings)
     except NoSkillSequenceError as error:
-        return _unplanned(cfg, problem, initial, settled, target, emd_initial, executor, seed,
-                          time.perf_counter() - started, error)
-    execution = execute_plan(cfg, bundle, env, the_plan, executor, rng)
+        the_plan = None
+        execution = Execution(steps=(), final=settled, failure=f"planning: {error}")
+    else:
+        execution = execute_plan(cfg, bundle, env, the_plan, executor, rng)
 
     emd_final = shape_distance(execution.final.dough_points, problem.target, seed)
     performance = float(normalised_performance(emd_initial, emd_final))
     return EvaluationResult(
         config_id=problem.config_id,
-        skills=tuple(the_plan.skills),
-        attention=tuple(tuple(int(i) for i in a) for a in the_plan.attention),
+        skills=() if the_plan is None else tuple(the_plan.skills),
+        attention=() if the_plan is None else tuple(tuple(int(i) for i in a) for a in the_plan.attention),
         performance=performance,
         success=bool(is_success(performance, cfg.eval.success_threshold)),
-        planning_time_s=float(the_plan.planning_time_s),
+        planning_time_s=time.perf_counter() - started if the_plan is None else float(the_plan.planning_time_s),
         emd_initial=emd_initial,
         emd_final=emd_final,
-        emd_planned_goal=planned_goal_distance(decode_set(bundle, the_plan.latent_sets[-1]), target, seed),
+        emd_planned_goal=(float("nan") if the_plan is None
+                          else planned_goal_distance(decode_set(bundle, the_plan.latent_sets[-1]), target, seed)),
         emd_reached_goal=emd_final,
         executor=executor,
         skipped=tuple(step.skipped for step in execution.steps),
-        frames=_frames(initial, execution, target),
+        frames=_frames(initial, execution, target, reached="reached" if the_plan else "reached (not planned)"),
         failure=execution.failure,
     )

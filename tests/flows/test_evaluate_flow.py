@@ -26,8 +26,7 @@ def test_evaluation_flow_plans_executes_and_logs_every_metric(prefect_server, is
 
     _, uri = isolated_store
     cfg = load("CutRearrange", "smoke", list(OVERRIDES))
-    bundle = untrained(cfg, "pasta", LatentPrior(2, (0.2, 0.1, 0.2), (0.8, 0.2, 0.8)))
-    save_trained(checkpoint_dir("CutRearrange", "smoke", "pasta") / "models.pt", bundle)
+    _save_untrained_bundle()
 
     summary = evaluate_flow.run("CutRearrange", "smoke", seeds=[3], overrides=OVERRIDES, experiment="ablation")
     assert summary["seeds"] == [3] and summary["executor"] == "policy"
