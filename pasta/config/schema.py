@@ -59,6 +59,10 @@ class SimConfig(Frozen):
     # never separates (docs/simulator.md).
     tool_expel_rate: float = Field(default=0.1, ge=0, le=1)
     arch: Literal["cpu", "cuda", "auto"] = "cpu"
+    # How P2G scatters to the grid: "serial" (no float atomics: bit-reproducible, and faster on 2 CPU
+    # cores), "parallel" (atomic adds: needed on a GPU, where a serial scatter is one thread), or "auto":
+    # serial on the CPU, parallel on CUDA.
+    p2g: Literal["auto", "serial", "parallel"] = "auto"
     steps_per_skill: int = Field(default=50, ge=1)
     settle_steps: int = Field(default=10, ge=0)
     observation_points: int = Field(default=1000, ge=1)
@@ -140,12 +144,31 @@ class ToolConfig(Frozen):
 
 
 class SkillConfig(Frozen):
-    """A skill: the tool it uses and how many entities it takes and gives."""
+    """A skill: the tool it uses and how many entities it takes and gives.
+
+    ``entities_in`` is one count, or several for a skill that takes any of them (GatherMove's ``gather``
+    squeezes however many pieces the scattered dough falls into, ``[1, 2, 3]``, into one). The planner
+    and the training data treat each count as its own arity of the same skill: one policy and one set
+    feasibility network serve them all.
+    """
 
     name: str
     tool: str
-    entities_in: int = Field(ge=1)
+    entities_in: int | tuple[int, ...]
     entities_out: int = Field(ge=1)
+
+    @model_validator(mode="after")
+    def _check_counts(self) -> SkillConfig:
+        counts = (self.entities_in,) if isinstance(self.entities_in, int) else self.entities_in
+        if not counts or min(counts) < 1 or list(counts) != sorted(set(counts)):
+            raise ValueError(f"skill {self.name!r}: entities_in must be a count >= 1 or increasing distinct "
+                             f"counts >= 1, got {self.entities_in}")
+        return self
+
+    @property
+    def input_counts(self) -> tuple[int, ...]:
+        """Every entity count the skill takes, increasing."""
+        return (self.entities_in,) if isinstance(self.entities_in, int) else self.entities_in
 
 
 class DataConfig(Frozen):
@@ -195,6 +218,10 @@ class PlanConfig(Frozen):
     # Planning horizon when it differs from the task's (the CRS horizon sweep, appendix Table 8);
     # the evaluation problems keep the task's own horizon.
     horizon: int | None = Field(default=None, ge=1, le=8)
+    # The set cost of the objective: "learned" is the appendix's cost predictor; "decoded" is the Chamfer
+    # distance between the entities' decoded clouds, on cost_points points each (pasta.plan.decoded_cost).
+    cost: Literal["learned", "decoded"] = "learned"
+    cost_points: int = Field(default=64, ge=1)
 
 
 class EvalConfig(Frozen):

@@ -10,8 +10,10 @@ import torch
 
 from pasta.config import load
 from pasta.models.variants import variant_spec
+from pasta.plan.decoded_cost import decoded_chamfer_cost
 from pasta.plan.functions import PlanningFunctions
 from pasta.plan.sequences import SkillSpec
+from pasta.plan.settings import COSTS
 from pasta.train.bundle import TrainedModels
 
 __all__ = ["bundle_functions", "bundle_skills", "frozen_parameters"]
@@ -19,37 +21,48 @@ __all__ = ["bundle_functions", "bundle_skills", "frozen_parameters"]
 
 @cache
 def _task_skills(task: str) -> tuple[SkillSpec, ...]:
-    # Skills do not depend on the profile; "smoke" is the cheapest to resolve.
-    return tuple(SkillSpec(s.name, s.entities_in, s.entities_out) for s in load(task, "smoke").skills)
+    # Skills do not depend on the profile; "smoke" is the cheapest to resolve. One spec per arity.
+    return tuple(SkillSpec(s.name, n_in, s.entities_out) for s in load(task, "smoke").skills for n_in in s.input_counts)
 
 
 def bundle_skills(bundle: TrainedModels) -> tuple[SkillSpec, ...]:
-    """The bundle's skills with the task config's entity counts (1 -> 1 for whole-scene variants)."""
-    specs = {s.name: s for s in _task_skills(bundle.task)}
+    """The bundle's skills with the task config's entity counts, one spec per arity, in ``bundle.skill_names``
+    order (1 -> 1 for whole-scene variants)."""
+    specs: dict[str, list[SkillSpec]] = {}
+    for spec in _task_skills(bundle.task):
+        specs.setdefault(spec.name, []).append(spec)
     missing = [name for name in bundle.skill_names if name not in specs]
     if missing:
         raise KeyError(f"skills {missing} of the {bundle.task} bundle are not in the task config ({sorted(specs)})")
-    whole_scene = variant_spec(bundle.variant).whole_scene_latent
-    return tuple(SkillSpec(name, 1, 1) if whole_scene else specs[name] for name in bundle.skill_names)
+    if variant_spec(bundle.variant).whole_scene_latent:
+        return tuple(SkillSpec(name, 1, 1) for name in bundle.skill_names)
+    return tuple(spec for name in bundle.skill_names for spec in specs[name])
 
 
-def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None = None) -> PlanningFunctions:
+def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None = None, *, cost: str = "learned",
+                     cost_points: int = 64) -> PlanningFunctions:
     """Feasibility and pair cost from the bundle's networks (on whatever device they are).
 
     Args:
         bundle: trained (or untrained) models.
-        skills: entity counts per skill in ``bundle.skill_names`` order; default ``bundle_skills(bundle)``.
+        cost: ``"learned"``, the bundle's cost predictor, or ``"decoded"``, the Chamfer distance between
+            the VAE's decoded clouds on ``cost_points`` points (:func:`pasta.plan.decoded_cost.decoded_chamfer_cost`).
+        skills: entity counts per skill (one spec per arity) in ``bundle.skill_names`` order; default
+            ``bundle_skills(bundle)``.
     """
     specs = tuple(skills) if skills is not None else bundle_skills(bundle)
-    if tuple(s.name for s in specs) != bundle.skill_names:
-        raise ValueError(f"skills {[s.name for s in specs]} must match the bundle's {list(bundle.skill_names)}")
-    networks = [bundle.feasibility(name) for name in bundle.skill_names]
-    cost = bundle.cost
+    names = tuple(dict.fromkeys(s.name for s in specs))
+    if names != bundle.skill_names:
+        raise ValueError(f"skills {list(names)} must match the bundle's {list(bundle.skill_names)}")
+    networks = [bundle.feasibility(spec.name) for spec in specs]  # the arities of a skill share its network
+    if cost not in COSTS:
+        raise ValueError(f"cost must be one of {list(COSTS)}, got {cost!r}")
+    pair_cost = bundle.cost if cost == "learned" else decoded_chamfer_cost(bundle.vae, cost_points)
 
     def feasibility(skill: int, inputs: torch.Tensor, outputs: torch.Tensor) -> torch.Tensor:
         return networks[skill](inputs, outputs)
 
-    return PlanningFunctions(specs, bundle.prior, feasibility, cost)
+    return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost)
 
 
 @contextmanager

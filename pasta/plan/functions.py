@@ -23,7 +23,8 @@ class PlanningFunctions:
     """The skills, the latent prior and the two differentiable functions the objective is built from.
 
     Attributes:
-        skills: the skills; ``feasibility``'s first argument indexes this tuple.
+        skills: the skills, one spec per arity (a skill taking 1 or 2 entities has two specs of one name);
+            ``feasibility``'s first argument indexes this tuple.
         prior: ``z ~ N(0, I)`` and the box of ``t``; new vectors start from it and ``t`` stays in its box.
         feasibility: ``f_k(inputs, outputs)`` per skill index (see ``FeasibilityFn``).
         pair_cost: ``c(a, b)`` for entity pairs (see ``PairCostFn``).
@@ -37,16 +38,10 @@ class PlanningFunctions:
     def __post_init__(self) -> None:
         if not self.skills:
             raise ValueError("need at least one skill")
-        names = [s.name for s in self.skills]
-        if len(set(names)) != len(names):
-            raise ValueError(f"skill names must be unique, got {names}")
+        arities = [(s.name, s.n_in, s.n_out) for s in self.skills]
+        if len(set(arities)) != len(arities):
+            raise ValueError(f"skills must be distinct (name, n_in, n_out), got {arities}")
 
     @property
     def entity_dim(self) -> int:
         return self.prior.entity_dim
-
-    def skill_index(self, name: str) -> int:
-        for k, skill in enumerate(self.skills):
-            if skill.name == name:
-                return k
-        raise KeyError(f"unknown skill {name!r}; known: {[s.name for s in self.skills]}")

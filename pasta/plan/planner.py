@@ -82,7 +82,7 @@ def plan_with(functions: PlanningFunctions, obs: torch.Tensor, goal: torch.Tenso
     else:
         if not skill_sequences:
             raise ValueError("skill_sequences is empty; pass None to enumerate them")
-        sequences = [resolve_sequence(functions.skills, names) for names in skill_sequences]
+        sequences = [resolve_sequence(functions.skills, names, obs.shape[0]) for names in skill_sequences]
         for seq in sequences:
             if len(seq) != horizon:
                 raise ValueError(f"sequence {[s.name for s in seq]} has length {len(seq)}, horizon is {horizon}")
@@ -117,6 +117,7 @@ def plan(bundle: TrainedModels, obs: torch.Tensor, goal: torch.Tensor, horizon: 
     started = time.perf_counter()
     bundle.to(device)
     with frozen_parameters(bundle):
-        result = plan_with(bundle_functions(bundle), obs, goal, horizon, settings, device, skill_sequences)
+        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points)
+        result = plan_with(functions, obs, goal, horizon, settings, device, skill_sequences)
     return Plan(result.skills, result.attention, result.latent_sets, result.feasibilities, result.cost,
                 result.score, time.perf_counter() - started)

@@ -34,7 +34,7 @@ def plan_receding_horizon_with(functions: PlanningFunctions, obs: torch.Tensor, 
     check_set(goal, functions.entity_dim, "goal")
     if window < 1:
         raise ValueError(f"window must be >= 1, got {window}")
-    sequence = resolve_sequence(functions.skills, skill_sequence)
+    sequence = resolve_sequence(functions.skills, skill_sequence, obs.shape[0])
     if not sequence:
         raise ValueError("skill_sequence is empty")
     set_sizes(sequence, obs.shape[0])
@@ -73,7 +73,7 @@ def plan_receding_horizon(bundle: TrainedModels, obs: torch.Tensor, goal: torch.
     started = time.perf_counter()
     bundle.to(device)
     with frozen_parameters(bundle):
-        result = plan_receding_horizon_with(bundle_functions(bundle), obs, goal, skill_sequence, window, settings,
-                                            device)
+        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points)
+        result = plan_receding_horizon_with(functions, obs, goal, skill_sequence, window, settings, device)
     return Plan(result.skills, result.attention, result.latent_sets, result.feasibilities, result.cost,
                 result.score, time.perf_counter() - started)

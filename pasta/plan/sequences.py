@@ -72,10 +72,39 @@ def enumerate_sequences(skills: Sequence[SkillSpec], horizon: int, k_obs: int, k
     return found
 
 
-def resolve_sequence(skills: Sequence[SkillSpec], names: Sequence[str]) -> tuple[SkillSpec, ...]:
-    """The specs of the named skills; raises ``KeyError`` naming an unknown skill and the known ones."""
-    by_name = {s.name: s for s in skills}
-    try:
-        return tuple(by_name[name] for name in names)
-    except KeyError as error:
-        raise KeyError(f"unknown skill {error.args[0]!r}; known: {sorted(by_name)}") from None
+def resolve_sequence(skills: Sequence[SkillSpec], names: Sequence[str], k_obs: int | None = None
+                     ) -> tuple[SkillSpec, ...]:
+    """The specs of the named skills.
+
+    A skill with several arities (specs of one name with different ``n_in``, such as a gather of 1, 2 or 3
+    pieces) takes the most entities the set then holds, which needs ``k_obs``, the entity count the
+    sequence starts from.
+
+    Raises:
+        KeyError: naming an unknown skill and the known ones.
+        ValueError: when a skill with several arities is named without ``k_obs``, or none of its arities
+            fits the set.
+    """
+    by_name: dict[str, list[SkillSpec]] = {}
+    for spec in skills:
+        by_name.setdefault(spec.name, []).append(spec)
+    unknown = [name for name in names if name not in by_name]
+    if unknown:
+        raise KeyError(f"unknown skill {unknown[0]!r}; known: {sorted(by_name)}")
+    chosen: list[SkillSpec] = []
+    size = k_obs
+    for h, name in enumerate(names, start=1):
+        options = by_name[name]
+        if len(options) > 1:
+            if size is None:
+                raise ValueError(f"skill {name!r} takes {sorted(s.n_in for s in options)} entities: "
+                                 f"resolving it needs the observed entity count k_obs")
+            fitting = [s for s in options if s.n_in <= size]
+            if not fitting:
+                raise ValueError(f"step {h} ({name}) takes at least {min(s.n_in for s in options)} entities but "
+                                 f"the set then holds {size}")
+            options = [max(fitting, key=lambda s: s.n_in)]
+        chosen.append(options[0])
+        if size is not None:
+            size = size - options[0].n_in + options[0].n_out
+    return tuple(chosen)

@@ -6,7 +6,9 @@ from dataclasses import dataclass
 
 from pasta.config.schema import TaskConfig
 
-__all__ = ["DEFAULT_HALVING", "PlanSettings"]
+__all__ = ["COSTS", "DEFAULT_HALVING", "PlanSettings"]
+
+COSTS = ("learned", "decoded")  # the set cost of the objective (PlanSettings.cost)
 
 # Fractions of the iterations after which the worse half of the surviving samples is dropped
 # (successive halving; see docs/planning.md for the measurements behind this choice).
@@ -29,6 +31,9 @@ class PlanSettings:
         min_survivors: halving never leaves fewer samples than this (or than there are).
         chunk_samples: samples evaluated per forward/backward pass (bounds memory; results do not depend on it
             beyond floating-point summation order).
+        cost: ``"learned"`` (the bundle's cost predictor, the appendix's choice) or ``"decoded"`` (Chamfer
+            distance between decoded entity clouds, :mod:`pasta.plan.decoded_cost`).
+        cost_points: points per decoded entity with the decoded cost.
     """
 
     lr: float
@@ -40,6 +45,8 @@ class PlanSettings:
     halving: tuple[float, ...] = ()
     min_survivors: int = 64
     chunk_samples: int = 8192
+    cost: str = "learned"
+    cost_points: int = 64
 
     def __post_init__(self) -> None:
         if self.lr <= 0:
@@ -58,13 +65,18 @@ class PlanSettings:
             raise ValueError(f"min_survivors must be >= 1, got {self.min_survivors}")
         if self.chunk_samples < 1:
             raise ValueError(f"chunk_samples must be >= 1, got {self.chunk_samples}")
+        if self.cost not in COSTS:
+            raise ValueError(f"cost must be one of {list(COSTS)}, got {self.cost!r}")
+        if self.cost_points < 1:
+            raise ValueError(f"cost_points must be >= 1, got {self.cost_points}")
 
     @classmethod
     def from_config(cls, cfg: TaskConfig, *, halving: tuple[float, ...] = DEFAULT_HALVING, seed: int = 0
                     ) -> PlanSettings:
-        """Table 3's lr, iterations and samples of ``cfg.plan``; alpha 10 for CutRearrange, 100 otherwise."""
+        """Table 3's lr, iterations, samples and ``cfg.plan``'s cost; alpha 10 for CutRearrange, 100 otherwise."""
         return cls(lr=cfg.plan.lr, iterations=cfg.plan.iterations, samples=cfg.plan.samples,
-                   alpha=10.0 if cfg.task == "CutRearrange" else 100.0, seed=seed, halving=halving)
+                   alpha=10.0 if cfg.task == "CutRearrange" else 100.0, seed=seed, halving=halving,
+                   cost=cfg.plan.cost, cost_points=cfg.plan.cost_points)
 
     def halving_iterations(self) -> frozenset[int]:
         """Iterations (0-based) after whose step the worse half is dropped; never the last one."""

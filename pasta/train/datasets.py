@@ -159,7 +159,7 @@ class TransitionSampler:
         pairs = self._filter_all(self._obs_goal(rows, self._hindsight_states(rows, rng)), self.filter_epsilon)
         spec = self.skills[skill]
         keep = [(o, g) for o, g in pairs if len(o) and len(g)
-                and (self.filter_epsilon <= 0 or (len(o), len(g)) == (spec.entities_in, spec.entities_out))]
+                and (self.filter_epsilon <= 0 or (len(o) in spec.input_counts and len(g) == spec.entities_out))]
         return FeasibilityPositives([o for o, _ in keep], [g for _, g in keep])
 
     def policy_samples(self, skill: int, rows: np.ndarray, rng: np.random.Generator,
@@ -169,8 +169,8 @@ class TransitionSampler:
         hindsight = self._hindsight_states(rows, rng)
         use_target = rng.random(len(rows)) >= HINDSIGHT_GOAL_RATIO
         goals = np.where(use_target, self.demos.target_state[rows[:, 0]], hindsight)
-        epsilon = 0.0 if spec.entities_out > spec.entities_in else self.filter_epsilon
-        allowed = {spec.entities_in, spec.entities_out}
+        epsilon = 0.0 if spec.entities_out > max(spec.input_counts) else self.filter_epsilon
+        allowed = {*spec.input_counts, spec.entities_out}
         pairs: list[tuple[np.ndarray, np.ndarray]] = []
         chosen: list[int] = []
         for start in range(0, len(rows), 2 * limit):  # filter a few rows at a time: only `limit` are needed

@@ -102,7 +102,7 @@ GBTO = {  # lr, velocity weight
 }
 SKILLS = {  # name -> (tool, entities in, entities out)
     "LiftSpread": {"lift": ("spatula", 1, 1), "spread": ("rolling_pin", 1, 1)},
-    "GatherMove": {"gather": ("gripper", 1, 1), "move": ("spatula", 1, 1)},
+    "GatherMove": {"gather": ("gripper", (1, 2, 3), 1), "move": ("spatula", 1, 1)},
     "CutRearrange": {"cut": ("knife", 1, 2), "rearrange": ("gripper", 1, 1)},
     "CRS": {"cut": ("knife", 1, 2), "push": ("pusher", 1, 1), "spread": ("roller", 1, 1)},
     "CRS-Twice": {"cut": ("knife", 1, 2), "push": ("pusher", 1, 1), "spread": ("roller", 1, 1)},
@@ -454,3 +454,15 @@ def test_missing_conf_dir(monkeypatch, tmp_path):
     monkeypatch.setenv("PASTA_CONF_DIR", str(tmp_path / "nowhere"))
     with pytest.raises(ConfigError, match="PASTA_CONF_DIR"):
         load("CRS")
+
+
+@pytest.mark.parametrize("counts", [0, [], [2, 1], [1, 1], [0, 1]])
+def test_bad_skill_entity_counts_are_refused(conf_copy, counts):
+    _edit(conf_copy / "tasks" / "GatherMove.yaml", lambda d: d["skills"][0].update(entities_in=counts))
+    with pytest.raises(ConfigError, match="gather"):
+        load("GatherMove", "smoke")
+
+
+def test_skill_input_counts():
+    gather, move = load("GatherMove", "smoke").skills
+    assert (gather.input_counts, move.input_counts) == ((1, 2, 3), (1,))

@@ -5,7 +5,7 @@ import torch
 
 from pasta.config import load
 from pasta.models.latent_prior import LatentPrior
-from pasta.plan import DEFAULT_HALVING, PlanSettings, bundle_skills, plan, plan_receding_horizon
+from pasta.plan import DEFAULT_HALVING, PlanSettings, bundle_functions, bundle_skills, plan, plan_receding_horizon
 from pasta.train import untrained
 
 PRIOR = LatentPrior(2, (0.2, 0.0, 0.2), (0.8, 0.2, 0.8))
@@ -46,3 +46,20 @@ def test_untrained_bundle_receding_horizon():
 def test_whole_scene_variant_plans_one_entity():
     bundle = untrained(load("CutRearrange", "smoke"), "flat3d", PRIOR)
     assert {(s.n_in, s.n_out) for s in bundle_skills(bundle)} == {(1, 1)}
+
+
+def test_gather_arities_share_one_feasibility_network():
+    bundle = untrained(load("GatherMove", "smoke"), "pasta", PRIOR)
+    assert [(s.name, s.n_in) for s in bundle_skills(bundle)] == [("gather", 1), ("gather", 2), ("gather", 3),
+                                                                 ("move", 1)]
+    functions = bundle_functions(bundle)
+    gen = torch.Generator().manual_seed(0)
+    two, one = PRIOR.sample((1, 2), gen), PRIOR.sample((1, 1), gen)
+    network = bundle.feasibility("gather")
+    with torch.no_grad():
+        assert torch.equal(functions.feasibility(1, two, one), network(two, one))
+        assert torch.equal(functions.feasibility(0, two[:, :1], one), network(two[:, :1], one))
+    obs, goal = PRIOR.sample((2,), gen), PRIOR.sample((1,), gen)
+    result = plan(bundle, obs, goal, 2, PlanSettings(lr=0.01, iterations=3, samples=8, alpha=100.0))
+    gathers = [len(a) for skill, a in zip(result.skills, result.attention, strict=True) if skill == "gather"]
+    assert 2 in gathers and [u.shape[0] for u in result.latent_sets][-1] == 1

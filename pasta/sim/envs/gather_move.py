@@ -3,8 +3,8 @@
 Squeeze scattered dough into one pile on the spatula with the gripper, then carry the pile onto
 the cutting board with the spatula. Skills (``conf/tasks/GatherMove.yaml``):
 
-* ``gather``: gripper, the scattered pieces in -> 1 piece out (the YAML keeps entities_in 1 for
-  now: DBSCAN with min_points 10 keeps few of the small blobs as entities);
+* ``gather``: gripper, the scattered pieces in (1, 2 or 3: DBSCAN joins the small blobs into few
+  pieces) -> 1 piece out;
 * ``move``: spatula (a box), 1 piece in -> 1 piece out.
 
 An episode is gather, move (horizon 2). The cutting board is a static tool.
