@@ -54,6 +54,8 @@ def _profile_tables(ev: pd.DataFrame, tasks: tuple[str, ...]) -> list[tables.Tab
         found += [tables.ablation_table(ev), tables.samples_table(ev)]
     if "CRS" in tasks:
         found += [tables.horizon_table(ev), tables.distractor_table(ev)]
+    if tables.other_experiments(ev, tasks):
+        found.append(tables.experiments_table(ev, tasks))
     return found
 
 

@@ -162,6 +162,33 @@ def emd_table(ev: pd.DataFrame, tasks: Sequence[str]) -> Table:
                  "The paper's values are from 4 real-world trajectories per task; ours are simulated.")
 
 
+# Experiments with their own table; every other ``pasta.experiment`` tag goes to ``experiments_table``.
+TABULATED_EXPERIMENTS = ("main", "ablation", "planning_time", "sweep_samples", "sweep_horizon", "sweep_distractors")
+
+
+def other_experiments(ev: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
+    """The experiment tags of ``tasks``' PASTA runs that no appendix table covers, sorted."""
+    runs = ev[ev["task"].isin(list(tasks)) & (ev["variant"] == PAPER_VARIANT)]
+    return sorted(set(runs["experiment"]) - set(TABULATED_EXPERIMENTS))
+
+
+def experiments_table(ev: pd.DataFrame, tasks: Sequence[str]) -> Table:
+    """The ``main`` PASTA runs beside every other experiment of the same task (a planner or executor option,
+    e.g. ``decoded_cost`` or ``scripted_executor``): performance, success and EMD of the planned goal."""
+    rows = []
+    for task in tasks:
+        for experiment in ["main", *other_experiments(ev, [task])]:
+            runs = _select(ev, experiment, task, PAPER_VARIANT)
+            if experiment != "main" or not runs.empty:
+                rows.append({"task": task, "experiment": experiment, **_score_row(runs),
+                             "EMD(planned, goal)": cell(runs["emd_planned_goal"], 4)})
+    columns = ["task", "experiment", "seeds", "performance", "success", "EMD(planned, goal)"]
+    return Table("experiments", "PASTA's main runs beside the other experiments of each task",
+                 pd.DataFrame(rows, columns=columns),
+                 "An experiment here changes one option of the main runs (its runs' parameters say which), e.g. "
+                 "decoded_cost: plan.cost=decoded; scripted_executor: --executor scripted.")
+
+
 def horizon_table(ev: pd.DataFrame, task: str = "CRS") -> Table:
     """Appendix Table 8: performance against the planning horizon (``sweep_horizon``)."""
     runs = _select(ev, "sweep_horizon", task, PAPER_VARIANT)

@@ -24,6 +24,8 @@ EVAL_RUNS = [
     ("sweep_samples", "pasta", 0, "10", 0.1, 0.0, 1.0),
     ("sweep_samples", "pasta", 1, "10", 0.3, 0.2, 3.0),
     ("sweep_samples", "pasta", 0, "100", 0.5, 0.4, 10.0),
+    ("decoded_cost", "pasta", 0, "", 0.7, 0.8, 5.0),
+    ("decoded_cost", "pasta", 1, "", 0.5, 0.6, 5.0),
 ]
 
 
@@ -106,6 +108,18 @@ def test_main_planning_time_and_emd_tables(store):
     # seeds 0, 1 of main: planned 0.01, 0.02 -> 0.0150 ± 0.0071; reached 0.02, 0.04 -> 0.0300 ± 0.0141
     assert (emd["EMD(planned, goal)"], emd["EMD(reached, goal)"]) == ("0.0150 ± 0.0071", "0.0300 ± 0.0141")
     assert (emd["paper planned"], emd["paper reached"]) == ("0.038 ± 0.004", "0.056 ± 0.007")
+
+
+def test_other_experiments_sit_beside_the_main_runs(store):
+    ev = evaluation_runs(store["runs"])
+    assert tables.other_experiments(ev, ["CutRearrange", "CRS"]) == ["decoded_cost"]
+    table = tables.experiments_table(ev, ["CutRearrange", "GatherMove"])
+    assert table.frame["experiment"].tolist() == ["main", "decoded_cost"]  # GatherMove has no runs: no rows
+    decoded = _row(table, "experiment", "decoded_cost")
+    # performance 0.7, 0.5 -> 0.600 ± 0.141; success 80 %, 60 % -> 70% ± 14%; planned EMD 0.01, 0.02
+    assert (decoded["seeds"], decoded["performance"], decoded["success"], decoded["EMD(planned, goal)"]) == (
+        "2", "0.600 ± 0.141", "70% ± 14%", "0.0150 ± 0.0071")
+    assert _row(table, "experiment", "main")["performance"] == "0.400 ± 0.283"
 
 
 def test_sweep_tables_and_figure_data(store):
