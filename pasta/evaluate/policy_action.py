@@ -44,23 +44,24 @@ class PolicyInput:
     goal_latents: torch.Tensor
 
 
-def _batch(points: np.ndarray) -> torch.Tensor:
-    return torch.from_numpy(np.array(points, dtype=np.float32)).unsqueeze(0)
-
-
 def policy_action(bundle: TrainedModels, skill: str, seen: PolicyInput) -> np.ndarray:
-    """The raw ``(action_dim,)`` float64 action of ``skill``'s policy (no clipping, no checks)."""
+    """The raw ``(action_dim,)`` float64 action of ``skill``'s policy (no clipping, no checks), computed on
+    the policy's device."""
     policy = bundle.policy(skill)
+    device = next(policy.parameters()).device
+
+    def batch(values: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.array(values, dtype=np.float32)).unsqueeze(0).to(device)
+
     with torch.no_grad():
         if isinstance(policy, LatentSetPolicy):
-            obs = bundle.vae.encode_entities(_batch(seen.obs_points)).unsqueeze(0)  # (1, 1, E)
-            action = policy(obs, seen.goal_latents.float().unsqueeze(0))
+            obs = bundle.vae.encode_entities(batch(seen.obs_points)).unsqueeze(0)  # (1, 1, E)
+            action = policy(obs, seen.goal_latents.float().unsqueeze(0).to(device))
         elif isinstance(policy, ToolConcatPolicy):
-            action = policy(_batch(seen.obs_points), _batch(seen.goal_points),
-                            torch.from_numpy(np.array(seen.tool_state, np.float32)).unsqueeze(0))
+            action = policy(batch(seen.obs_points), batch(seen.goal_points), batch(seen.tool_state))
         else:
-            action = policy(_batch(seen.obs_points), _batch(seen.tool_points), _batch(seen.goal_points))
-    return action.reshape(-1).double().numpy()
+            action = policy(batch(seen.obs_points), batch(seen.tool_points), batch(seen.goal_points))
+    return action.reshape(-1).double().cpu().numpy()
 
 
 def checked_action(action: np.ndarray, skill: str, plan_step: int, env_step: int) -> np.ndarray:

@@ -30,6 +30,7 @@ from pasta.plan import NoSkillSequenceError, Plan, PlanSettings, plan, plan_rece
 from pasta.sim.envs import make_env
 from pasta.sim.envs.base import Observation
 from pasta.train.bundle import TrainedModels
+from pasta.train.device import training_device
 
 __all__ = ["EvaluationResult", "Frame", "evaluate_problem", "make_plan"]
 
@@ -84,10 +85,13 @@ class EvaluationResult:
 
 def make_plan(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, obs: torch.Tensor,
               goal: torch.Tensor, settings: PlanSettings) -> Plan:
-    """Receding-horizon planning over the problem's skill sequence when the config asks for it, else ``plan``."""
+    """Receding-horizon planning over the problem's skill sequence when the config asks for it, else ``plan``;
+    on CUDA when torch sees a GPU (``training_device``), else on the CPU."""
+    device = training_device()
     if cfg.plan.receding_horizon is not None:
-        return plan_receding_horizon(bundle, obs, goal, problem.skill_sequence, cfg.plan.receding_horizon, settings)
-    return plan(bundle, obs, goal, cfg.plan.horizon or cfg.horizon, settings)
+        return plan_receding_horizon(bundle, obs, goal, problem.skill_sequence, cfg.plan.receding_horizon, settings,
+                                     device)
+    return plan(bundle, obs, goal, cfg.plan.horizon or cfg.horizon, settings, device)
 
 
 def _frames(initial: Observation, execution: Execution, target: np.ndarray, reached: str = "reached"

@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import torch
 
+from pasta.models import random_draws
 from pasta.models.latent_prior import LatentPrior
 
 __all__ = [
@@ -44,7 +45,7 @@ def add_latent_noise(
     Returns a new tensor; with both sigmas 0 it equals ``u``.
     """
     sigma = torch.tensor([sigma_z] * latent_dim + [sigma_t] * 3, dtype=u.dtype, device=u.device)
-    return u + sigma * torch.randn(u.shape, generator=generator, dtype=u.dtype, device=u.device)
+    return u + sigma * random_draws.randn(u.shape, generator, dtype=u.dtype, device=u.device)
 
 
 def random_negatives(
@@ -105,7 +106,7 @@ def hard_negatives(
     n_obs = obs.shape[1]
     entities = torch.cat([obs, goal], dim=1).repeat_interleave(copies, dim=0)  # (n * c, K_o + K_g, E)
     valid = torch.cat([obs_mask, goal_mask], dim=1).repeat_interleave(copies, dim=0)
-    replaced = torch.multinomial(valid.to(obs.dtype), 1, generator=generator).squeeze(1)  # (n * c,)
+    replaced = random_draws.multinomial(valid.to(obs.dtype), 1, generator).squeeze(1)  # (n * c,)
     rows = torch.arange(entities.shape[0], device=obs.device)
     entities[rows, replaced] = prior.sample((entities.shape[0],), generator, obs.dtype, obs.device)
     return HardNegatives(
@@ -169,7 +170,7 @@ def feasibility_batch(
     rand_obs, rand_goal = random_negatives(
         prior, n_random, obs.shape[1], goal.shape[1], generator, obs.dtype, obs.device
     )
-    source = torch.randint(n_pos, (n_random,), generator=generator, device=obs.device)
+    source = random_draws.randint(n_pos, (n_random,), generator, device=obs.device)
     n_hard = hard.obs.shape[0]
 
     def weights(count: int, total: float) -> torch.Tensor:

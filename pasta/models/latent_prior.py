@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import torch
 
+from pasta.models import random_draws
+
 __all__ = ["LatentPrior"]
 
 Vec3 = tuple[float, float, float]
@@ -52,8 +54,8 @@ class LatentPrior:
         device: torch.device | str | None = None,
     ) -> torch.Tensor:
         """Random entities ``(*shape, latent_dim + 3)``, drawn from ``generator``."""
-        z = torch.randn((*shape, self.latent_dim), generator=generator, dtype=dtype, device=device)
+        z = random_draws.randn((*shape, self.latent_dim), generator, dtype=dtype, device=device)
         low = torch.tensor(self.t_low, dtype=dtype, device=device)
         high = torch.tensor(self.t_high, dtype=dtype, device=device)
-        unit = torch.rand((*shape, 3), generator=generator, dtype=dtype, device=device)
+        unit = random_draws.rand((*shape, 3), generator, dtype=dtype, device=device)
         return torch.cat([z, low + unit * (high - low)], dim=-1)

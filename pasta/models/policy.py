@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 from pasta.geometry.distances import chamfer_distance
+from pasta.models import random_draws
 from pasta.models.layers import mlp, orthogonal_init_
 from pasta.models.pointnet import PointNetPlusPlusConfig, PointNetPlusPlusEncoder
 
@@ -52,7 +53,7 @@ def tag_point_roles(*clouds: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 def uniform_point_noise(points: torch.Tensor, amplitude: float, generator: torch.Generator | None) -> torch.Tensor:
     """``points + U(-amplitude, amplitude)`` per coordinate (official ``obs_noise`` = 0.005, uniform)."""
-    unit = torch.rand(points.shape, generator=generator, dtype=points.dtype, device=points.device)
+    unit = random_draws.rand(points.shape, generator, dtype=points.dtype, device=points.device)
     return points + amplitude * (2.0 * unit - 1.0)
 
 

@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from pasta.geometry.distances import chamfer_distance
+from pasta.models import random_draws
 from pasta.models.layers import mlp
 
 __all__ = ["PointCloudVAE", "VAEConfig"]
@@ -134,7 +135,7 @@ class PointCloudVAE(nn.Module):
         """
         shape, _ = self.normalise(points)
         z_mean, z_logvar = self.encode_shape(shape)
-        noise = torch.randn(z_mean.shape, generator=generator, dtype=z_mean.dtype, device=z_mean.device)
+        noise = random_draws.randn(z_mean.shape, generator, dtype=z_mean.dtype, device=z_mean.device)
         z = z_mean + noise * torch.exp(0.5 * z_logvar)
         reconstruction = chamfer_distance(self.decode_shape(z), shape).mean()
         kl = 0.5 * (z_mean.square() + z_logvar.exp() - 1.0 - z_logvar).sum(dim=-1).mean()

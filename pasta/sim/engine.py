@@ -80,6 +80,7 @@ class SimLayout:
     differentiable: bool
     collisions: tuple[tuple[int, int], ...] = ()
     static_tools: tuple[bool, ...] = ()
+    serial_p2g: bool = True
 
 
 @ti.data_oriented
@@ -90,11 +91,13 @@ class MPMSimulator:
         layout: grid size, particle count, dt, substeps per step, tool kinds.
         lower_bound_cells: particles are clamped to ``[max(1, lower) * dx, 1 - 3 dx]``.
         boundary_cells: thickness of the wall band in grid cells.
+        arch: Taichi architecture, ``"cpu"``, ``"cuda"`` or ``"auto"`` (:func:`ensure_taichi`).
     """
 
-    def __init__(self, layout: SimLayout, lower_bound_cells: int = 0, boundary_cells: int = 3):
-        ensure_taichi()
+    def __init__(self, layout: SimLayout, lower_bound_cells: int = 0, boundary_cells: int = 3, arch: str = "cpu"):
+        ensure_taichi(arch)
         self.layout = layout
+        self.serial_p2g = layout.serial_p2g
         self.n = layout.n_particles
         self.n_grid = layout.n_grid
         self.dx = 1.0 / layout.n_grid
@@ -326,8 +329,9 @@ class MPMSimulator:
 
     @ti.kernel
     def p2g(self, f: ti.i32):
-        """Scatter mass and momentum to the grid. Serial: no float atomics, bit-reproducible."""
-        ti.loop_config(serialize=True)
+        """Scatter mass and momentum to the grid: serially (no float atomics, bit-reproducible) or, with
+        ``layout.serial_p2g`` False, in parallel with atomic adds (a GPU's only fast way)."""
+        ti.loop_config(serialize=self.serial_p2g)
         for p in range(self.n):
             Xp = self.x[f, p] * self.inv_dx
             base = ti.cast(Xp - 0.5, ti.i32)
@@ -867,7 +871,7 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
     their compile-time layout; runtime values (material, tools) are set by the
     caller every time.
     """
-    ensure_taichi(sim.arch)
+    arch = ensure_taichi(sim.arch)  # refuses an architecture other than the one this process already runs
     layout = SimLayout(
         n_grid=sim.n_grid,
         n_particles=n_particles or sim.n_particles,
@@ -877,10 +881,11 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
         differentiable=differentiable,
         collisions=collision_pairs(tools),
         static_tools=tuple(t.static for t in tools),
+        serial_p2g=sim.p2g == "serial" or (sim.p2g == "auto" and arch == "cpu"),
     )
     key = (layout, sim.particle_lower_bound_cells, sim.boundary_cells)
     if key not in _SIMULATORS:
-        _SIMULATORS[key] = MPMSimulator(layout, sim.particle_lower_bound_cells, sim.boundary_cells)
+        _SIMULATORS[key] = MPMSimulator(layout, sim.particle_lower_bound_cells, sim.boundary_cells, sim.arch)
     simulator = _SIMULATORS[key]
     simulator.set_gravity(sim.gravity_m_s2)
     simulator.set_softness(sim.contact_softness)

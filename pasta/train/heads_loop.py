@@ -246,7 +246,7 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
         cfg: the task (skills, action space).
         variant: one of ``pasta.models.VARIANTS``.
         vae: the trained, frozen VAE (copied into the bundle).
-        latents: every entity's latent, from ``encode_entities`` (on ``device``).
+        latents: every entity's latent, from ``encode_entities`` (moved to ``device``).
         train_sampler: transitions of the training trajectories.
         held_out: fixed held-out samples for the per-epoch metrics.
         prior: ``P_u`` for the negatives (box of the training entity centres).
@@ -257,6 +257,7 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
         device: where to train (default: where ``latents`` are).
     """
     device = device or latents.device
+    latents = latents.to(device)
     spec = variant_spec(variant)
     bundle = untrained(cfg, variant, prior, model_config=model_config, seed=settings.seed)
     bundle.models["vae"].load_state_dict(vae.state_dict())

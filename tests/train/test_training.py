@@ -129,3 +129,25 @@ def test_heads_resume_continues_from_the_saved_epoch_and_reports_metrics(tmp_pat
         for key in a:
             assert torch.equal(a[key], b[key]), (name, key)
     assert _without_timings(straight.history) == _without_timings(resumed.history)
+
+
+@pytest.mark.gpu
+def test_vae_and_heads_train_on_cuda_like_on_the_cpu(tmp_path, cfg, training_data):
+    data = training_data
+    cuda = torch.device("cuda")
+    train, held = vae_clouds(data.demos, data.table, data.vae_train), vae_clouds(data.demos, data.table,
+                                                                                 data.vae_heldout)
+    settings = VAESettings(epochs=2, lr=2e-3, batch_size=16)
+    on_cpu = train_vae(train, held, tiny_model_config().vae, settings, tmp_path / "cpu.pt")
+    on_gpu = train_vae(train, held, tiny_model_config().vae, settings, tmp_path / "gpu.pt", device=cuda)
+    gpu_losses = [h["vae_train_loss"] for h in on_gpu.history]
+    assert gpu_losses == pytest.approx([h["vae_train_loss"] for h in on_cpu.history], rel=0.05)
+    config, vae, latents, prior, sampler, test = _setup(cfg, data, "pasta")
+    latents = latents.to(cuda)  # as heads_stage encodes them, on the training device
+    torch.cuda.reset_peak_memory_stats()
+    heads = train_heads(cfg, "pasta", vae, latents, sampler, HeldOut.build(test, latents), prior, SETTINGS,
+                        tmp_path / "heads.pt", model_config=config, device=cuda)
+    assert torch.cuda.max_memory_allocated() > 0
+    assert all(not p.is_cuda for p in heads.bundle.models["policy"].parameters())  # handed back on the CPU
+    for key in ("feasibility_auc_random", "cost_r2", "policy_mse"):
+        assert np.isfinite(heads.metrics[key]), key

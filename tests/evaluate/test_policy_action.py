@@ -1,0 +1,35 @@
+"""A skill policy's action does not depend on the device the bundle sits on."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from pasta.evaluate.policy_action import PolicyInput, policy_action
+from pasta.models.latent_prior import LatentPrior
+from pasta.train.bundle import untrained
+
+
+def _seen(rng: np.random.Generator) -> PolicyInput:
+    return PolicyInput(obs_points=rng.uniform(0.4, 0.6, (1000, 3)), tool_points=rng.uniform(0.4, 0.6, (100, 3)),
+                       tool_state=np.array([0.5, 0.2, 0.5, 1, 0, 0, 0, 0.1]),
+                       goal_points=rng.uniform(0.4, 0.6, (2000, 3)),
+                       goal_latents=LatentPrior(2, (0.4,) * 3, (0.6,) * 3).sample((2,), torch.Generator()))
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("variant", ["pasta", "tool_concat_policy", "shared_encoder_policy"])
+def test_policy_action_on_cuda_matches_the_cpu(cfg, variant):
+    bundle = untrained(cfg, variant, LatentPrior(2, (0.2, 0.1, 0.2), (0.8, 0.2, 0.8))).eval()
+    seen = _seen(np.random.default_rng(0))
+    on_cpu = policy_action(bundle, "cut", seen)
+    on_gpu = policy_action(copy.deepcopy(bundle).to("cuda"), "cut", seen)
+    np.testing.assert_allclose(on_gpu, on_cpu, rtol=1e-3, atol=1e-4)
+
+
+def test_policy_action_is_a_finite_vector_of_the_action_size(cfg, bundle):
+    action = policy_action(bundle, "cut", _seen(np.random.default_rng(1)))
+    assert action.shape == (10,) and action.dtype == np.float64 and np.isfinite(action).all()
