@@ -9,6 +9,7 @@ Each measurement runs in this process after one warm-up plan. Prints tables and 
     python benchmarks/plan.py              # full: about 15-20 minutes on 2 free cores
     python benchmarks/plan.py --quick      # reduced scale, a few minutes
     python benchmarks/plan.py --threads 1  # torch threads (default 2)
+    python benchmarks/plan.py --device cuda  # plan on a GPU (writes plan_cuda.json)
 """
 
 import argparse
@@ -58,16 +59,17 @@ def sample_iterations(settings: PlanSettings, n_sequences: int) -> int:
     return done + survivors * (settings.iterations - last)
 
 
-def time_plan(task: str, k_obs: int, k_goal: int, settings: PlanSettings) -> dict:
+def time_plan(task: str, k_obs: int, k_goal: int, settings: PlanSettings, device: str = "cpu") -> dict:
     cfg = load(task, "paper")
     bundle = untrained(load("CRS" if task == "CRS-Twice" else task, "paper"), "pasta", PRIOR)
     obs, goal = problem(k_obs, k_goal)
     if task == "CRS-Twice":
         n_sequences = 1
-        run = lambda s: plan_receding_horizon(bundle, obs, goal, CRS_TWICE, cfg.plan.receding_horizon, s)  # noqa: E731
+        run = lambda s: plan_receding_horizon(bundle, obs, goal, CRS_TWICE, cfg.plan.receding_horizon, s,  # noqa: E731
+                                              device)
     else:
         n_sequences = len(enumerate_sequences(bundle_skills(bundle), cfg.horizon, k_obs, k_goal))
-        run = lambda s: plan(bundle, obs, goal, cfg.horizon, s)  # noqa: E731
+        run = lambda s: plan(bundle, obs, goal, cfg.horizon, s, device)  # noqa: E731
     run(dataclasses.replace(settings, samples=4, iterations=2))  # warm-up
     result = run(settings)
     stages = len(CRS_TWICE) if task == "CRS-Twice" else 1
@@ -82,24 +84,26 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--device", default="cpu", help="torch device to plan on (cpu, cuda)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     quick = args.quick
     base = PlanSettings(lr=0.01, iterations=20 if quick else 100, samples=5000, alpha=10.0, halving=DEFAULT_HALVING)
-    out: dict = {"threads": args.threads, "quick": quick, "torch": torch.__version__, "cpu": platform.processor(),
-                 "cpu_count": os.cpu_count(), "load_average_start": os.getloadavg(),
+    device = args.device
+    out: dict = {"threads": args.threads, "device": device, "quick": quick, "torch": torch.__version__,
+                 "cpu": platform.processor(), "cpu_count": os.cpu_count(), "load_average_start": os.getloadavg(),
                  "matmul_gflops_start": matmul_gflops()}
 
     # 1. Side by side at CutRearrange's paper scale: exhaustive vs successive halving, same seed.
     scale = dataclasses.replace(base, samples=500 if quick else 5000)
-    exhaustive = time_plan("CutRearrange", 1, 2, dataclasses.replace(scale, halving=()))
-    pruned = time_plan("CutRearrange", 1, 2, scale)
+    exhaustive = time_plan("CutRearrange", 1, 2, dataclasses.replace(scale, halving=()), device)
+    pruned = time_plan("CutRearrange", 1, 2, scale, device)
     out["side_by_side"] = {"exhaustive": exhaustive, "pruned": pruned,
                            "score_loss": exhaustive["score"] - pruned["score"],
                            "speed_up": exhaustive["seconds"] / pruned["seconds"]}
 
     # 2. Time against samples per sequence (Fig. 2a), CutRearrange, default (pruned) planner.
-    out["samples_sweep"] = [time_plan("CutRearrange", 1, 2, dataclasses.replace(base, samples=n))
+    out["samples_sweep"] = [time_plan("CutRearrange", 1, 2, dataclasses.replace(base, samples=n), device)
                             for n in ([100, 500] if quick else [100, 500, 1000, 5000])]
 
     # 3. Per task at its config's iterations with fewer samples; paper scale extrapolated from the work done.
@@ -109,7 +113,7 @@ def main() -> None:
         settings = PlanSettings.from_config(cfg)
         measured = dataclasses.replace(settings, samples=50 if quick else 500,
                                        iterations=min(settings.iterations, 20) if quick else settings.iterations)
-        row = time_plan(task, k_obs, k_goal, measured)
+        row = time_plan(task, k_obs, k_goal, measured, device)
         stages = len(CRS_TWICE) if task == "CRS-Twice" else 1
         row["paper_samples"] = settings.samples
         row["paper_iterations"] = settings.iterations
@@ -120,14 +124,16 @@ def main() -> None:
     out["matmul_gflops_end"] = matmul_gflops()
 
     RESULTS.mkdir(exist_ok=True)
-    path = RESULTS / ("plan_quick.json" if quick else "plan.json")
+    suffix = ("_quick" if quick else "") + ("" if device == "cpu" else f"_{device.split(':')[0]}")
+    path = RESULTS / f"plan{suffix}.json"
     path.write_text(json.dumps(out, indent=2))
     print_tables(out)
     print(f"\nwrote {path}")
 
 
 def print_tables(out: dict) -> None:
-    print(f"\ntorch threads {out['threads']}; load average {out['load_average_start'][0]:.1f} -> "
+    print(f"\ndevice {out.get('device', 'cpu')}; torch threads {out['threads']}; "
+          f"load average {out['load_average_start'][0]:.1f} -> "
           f"{out['load_average_end'][0]:.1f}; matmul {out['matmul_gflops_start']:.0f} -> "
           f"{out['matmul_gflops_end']:.0f} GFLOP/s")
     side = out["side_by_side"]

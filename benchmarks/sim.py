@@ -7,6 +7,7 @@ peak memory is per process). Prints a table and writes JSON to
     python benchmarks/sim.py            # full set
     python benchmarks/sim.py --quick    # reduced set, a few minutes
     python benchmarks/sim.py --compile  # also time a cold kernel compile (empty cache)
+    python benchmarks/sim.py --arch cuda  # Taichi on a GPU (writes sim_cuda.json)
 """
 
 import argparse
@@ -35,7 +36,15 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int) -> dict:
+def _sync(arch: str) -> None:
+    """Wait for queued GPU kernels, so timings cover the work and not only its launch."""
+    if arch != "cpu":
+        import taichi as ti
+
+        ti.sync()
+
+
+def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int, arch: str = "cpu") -> dict:
     """Throughput of one (grid, particles) layout: a box pressing a block."""
     import numpy as np
 
@@ -45,7 +54,7 @@ def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int) -
 
     dt, substeps = substeps_for(n_grid)
     sim_cfg = SimConfig(n_grid=n_grid, dt_s=dt, substeps_per_step=substeps, n_particles=n_particles,
-                        gravity_m_s2=(0, -600, 0), contact_softness=666.0)
+                        gravity_m_s2=(0, -600, 0), contact_softness=666.0, arch=arch)
     material = MaterialConfig(youngs_modulus_pa=5e3, poisson_ratio=0.15, yield_stress_pa=150, ground_friction=0.5)
     tool = ToolConfig(name="pusher", kind="box", position=(0.5, 0.2, 0.5), half_extents=(0.06, 0.02, 0.06),
                       action_scales=(0.01, 0.01, 0.01, 0.0, 0.0, 0.0), friction=1.0)
@@ -61,9 +70,11 @@ def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int) -
     sim.set_state(state)
     sim.step(press)  # compile / load kernels
     sim.set_state(state)
+    _sync(arch)
     start = time.perf_counter()
     for t in range(steps):
         sim.step(press, step=t)
+    _sync(arch)
     forward_s = time.perf_counter() - start
     result["forward_mps"] = steps * substeps * n_particles / forward_s / 1e6
     result["forward_ms_per_substep"] = forward_s / (steps * substeps) * 1e3
@@ -73,10 +84,13 @@ def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int) -
     actions = np.tile(press, (grad_steps, 1))
     warm = simulate_episode(grad_sim, state, actions[:1])
     backpropagate_episode(grad_sim, warm, {"x": np.ones_like(warm.x)})
+    _sync(arch)
     start = time.perf_counter()
     episode = simulate_episode(grad_sim, state, actions)
+    _sync(arch)
     middle = time.perf_counter()
     backpropagate_episode(grad_sim, episode, {"x": np.ones_like(episode.x)})
+    _sync(arch)
     end = time.perf_counter()
     fwd = middle - start
     result["forward_backward_mps"] = grad_steps * substeps * n_particles / (end - start) / 1e6
@@ -85,23 +99,25 @@ def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int) -
     return result
 
 
-def measure_task(task: str, steps: int) -> dict:
+def measure_task(task: str, steps: int, arch: str = "cpu") -> dict:
     """Seconds for one episode of ``steps`` environment steps of a task at the small profile."""
     import numpy as np
 
     from pasta.config import load
     from pasta.sim.envs import default_configuration, make_env
 
-    cfg = load(task, "small")
+    cfg = load(task, "small", [f"sim.arch={arch}"])
     env = make_env(cfg)
     configuration = default_configuration(cfg, np.random.default_rng(0))
     env.reset(configuration)
     action = np.zeros(env.action_dim, np.float32)
     env.step(action)
     env.reset(configuration)
+    _sync(arch)
     start = time.perf_counter()
     for _ in range(steps):
         env.step(action)
+    _sync(arch)
     seconds = time.perf_counter() - start
     return {"task": task, "profile": "small", "n_grid": cfg.sim.n_grid, "n_particles": cfg.sim.n_particles,
             "steps": steps, "seconds": seconds, "seconds_per_50_steps": seconds * 50 / steps,
@@ -121,18 +137,18 @@ def measure_cold_compile() -> dict:
     return {"cold_s": cold, "warm_s": warm}
 
 
-def run_child(args: list[str], env: dict | None = None) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--child", *args], capture_output=True, text=True, env=env,
-                         check=True)
+def run_child(args: list[str], env: dict | None = None, arch: list[str] = ()) -> dict:
+    out = subprocess.run([sys.executable, __file__, *arch, "--child", *args], capture_output=True, text=True,
+                         env=env, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def child_main(args: list[str]) -> None:
+def child_main(args: list[str], arch: str) -> None:
     if args[0] == "layout":
         n_grid, n_particles, steps, grad_steps = map(int, args[1:5])
-        result = measure_layout(n_grid, n_particles, steps, grad_steps)
+        result = measure_layout(n_grid, n_particles, steps, grad_steps, arch)
     else:
-        result = measure_task(args[1], int(args[2]))
+        result = measure_task(args[1], int(args[2]), arch)
     print(json.dumps(result))
 
 
@@ -158,20 +174,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="reduced set (a few minutes)")
     parser.add_argument("--compile", action="store_true", help="also time a cold kernel compile")
+    parser.add_argument("--arch", default="cpu", choices=["cpu", "cuda"], help="Taichi architecture")
     parser.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        child_main(args.child)
+        child_main(args.child, args.arch)
         return
     layouts = LAYOUTS_QUICK if args.quick else LAYOUTS_FULL
     steps, grad_steps, task_steps = (5, 2, 10) if args.quick else (20, 5, 50)
-    layout_results = [run_child(["layout", str(g), str(n), str(steps), str(grad_steps)]) for g, n in layouts]
-    task_results = [run_child(["task", task, str(task_steps)]) for task in TASKS]
+    arch = ["--arch", args.arch]
+    layout_results = [run_child(["layout", str(g), str(n), str(steps), str(grad_steps)], arch=arch)
+                      for g, n in layouts]
+    task_results = [run_child(["task", task, str(task_steps)], arch=arch) for task in TASKS]
     compile_times = measure_cold_compile() if args.compile else None
     RESULTS.mkdir(parents=True, exist_ok=True)
-    payload = {"quick": args.quick, "cpu_count": os.cpu_count(), "layouts": layout_results, "tasks": task_results,
-               "compile": compile_times, "measured_at": time.strftime("%Y-%m-%dT%H:%M:%S")}
-    target = RESULTS / ("sim_quick.json" if args.quick else "sim.json")
+    payload = {"quick": args.quick, "arch": args.arch, "cpu_count": os.cpu_count(), "layouts": layout_results,
+               "tasks": task_results, "compile": compile_times, "measured_at": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    target = RESULTS / f"sim{'_quick' if args.quick else ''}{'' if args.arch == 'cpu' else '_' + args.arch}.json"
     tmp = target.with_suffix(".tmp")
     tmp.write_text(json.dumps(payload, indent=2))
     tmp.replace(target)
