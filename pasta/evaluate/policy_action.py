@@ -10,6 +10,7 @@ value) and only then clips to [-1, 1], as the environment would.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,7 +49,7 @@ def policy_action(bundle: TrainedModels, skill: str, seen: PolicyInput) -> np.nd
     """The raw ``(action_dim,)`` float64 action of ``skill``'s policy (no clipping, no checks), computed on
     the policy's device."""
     policy = bundle.policy(skill)
-    device = next(policy.parameters()).device
+    device = next(itertools.chain(policy.parameters(), policy.buffers()), torch.empty(0)).device
 
     def batch(values: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.array(values, dtype=np.float32)).unsqueeze(0).to(device)
