@@ -35,19 +35,14 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def encoded_problem(cfg, bundle, config_id: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(K_obs, D)`` and ``(K_goal, D)`` latents of evaluation problem ``config_id``, encoded as evaluation does."""
+    """``(K_obs, D)`` and ``(K_goal, D)`` latents of evaluation problem ``config_id``, as ``pasta evaluate``
+    prepares them."""
     from pasta.data.configurations import evaluation_problem  # the simulator is imported only to encode
-    from pasta.evaluate.encoding import encode_scene
-    from pasta.sim.envs import make_env
+    from pasta.evaluate.problem import prepare_problem
 
-    problem = evaluation_problem(cfg, config_id)
     rng = np.random.default_rng([seed, config_id])
-    env = make_env(cfg)
-    env.reset(problem.initial)
-    settled = env.settle(cfg.sim.settle_steps)
-    target = np.asarray(problem.target, np.float32)[: cfg.sim.observation_points]
-    return (encode_scene(cfg, bundle, settled.dough_points, rng).latents,
-            encode_scene(cfg, bundle, target, rng).latents)
+    prepared = prepare_problem(cfg, bundle, evaluation_problem(cfg, config_id), rng)
+    return prepared.obs.latents, prepared.goal.latents
 
 
 def main() -> None:

@@ -18,6 +18,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -137,7 +138,7 @@ def measure_cold_compile() -> dict:
     return {"cold_s": cold, "warm_s": warm}
 
 
-def run_child(args: list[str], env: dict | None = None, arch: list[str] = ()) -> dict:
+def run_child(args: list[str], env: dict | None = None, arch: Sequence[str] = ()) -> dict:
     out = subprocess.run([sys.executable, __file__, *arch, "--child", *args], capture_output=True, text=True,
                          env=env, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 TASK_NAMES = ("LiftSpread", "GatherMove", "CutRearrange", "CRS", "CRS-Twice")
 PROFILE_NAMES = ("smoke", "small", "paper")
 TOOL_KINDS = ("box", "knife", "gripper", "rolling_pin")
+PLAN_COSTS = ("learned", "decoded")  # the planner's set cost (PlanConfig.cost)
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -159,7 +160,7 @@ class SkillConfig(Frozen):
 
     @model_validator(mode="after")
     def _check_counts(self) -> SkillConfig:
-        counts = (self.entities_in,) if isinstance(self.entities_in, int) else self.entities_in
+        counts = self.input_counts
         if not counts or min(counts) < 1 or list(counts) != sorted(set(counts)):
             raise ValueError(f"skill {self.name!r}: entities_in must be a count >= 1 or increasing distinct "
                              f"counts >= 1, got {self.entities_in}")
@@ -220,7 +221,7 @@ class PlanConfig(Frozen):
     horizon: int | None = Field(default=None, ge=1, le=8)
     # The set cost of the objective: "learned" is the appendix's cost predictor; "decoded" is the Chamfer
     # distance between the entities' decoded clouds, on cost_points points each (pasta.plan.decoded_cost).
-    cost: Literal["learned", "decoded"] = "learned"
+    cost: Literal[PLAN_COSTS] = "learned"
     cost_points: int = Field(default=64, ge=1)
 
 

@@ -22,17 +22,17 @@ import torch
 
 from pasta.config.schema import TaskConfig
 from pasta.data.configurations import EvaluationProblem
-from pasta.evaluate.encoding import encode_scene
+from pasta.evaluate.encoding import EncodedScene, encode_scene
 from pasta.evaluate.execution import Execution, check_executor, decode_set, execute_plan
 from pasta.evaluate.metrics import planned_goal_distance, shape_distance
 from pasta.geometry.distances import is_success, normalised_performance
 from pasta.plan import NoSkillSequenceError, Plan, PlanSettings, plan, plan_receding_horizon
 from pasta.sim.envs import make_env
-from pasta.sim.envs.base import Observation
+from pasta.sim.envs.base import DoughEnv, Observation
 from pasta.train.bundle import TrainedModels
 from pasta.train.device import training_device
 
-__all__ = ["EvaluationResult", "Frame", "evaluate_problem", "make_plan"]
+__all__ = ["EvaluationResult", "Frame", "PreparedProblem", "evaluate_problem", "make_plan", "prepare_problem"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,6 +106,39 @@ def _frames(initial: Observation, execution: Execution, target: np.ndarray, reac
     return tuple(frames)
 
 
+@dataclass(frozen=True, eq=False)
+class PreparedProblem:
+    """A problem set up in the simulator and encoded for the planner.
+
+    Attributes:
+        env: the task's environment, in the settled state.
+        initial: the observation at reset, before settling.
+        settled: the observation after ``cfg.sim.settle_steps`` zero actions (what the plan starts from).
+        target: ``(P, 3)`` the goal's first ``cfg.sim.observation_points`` points.
+        obs: the settled dough, encoded.
+        goal: the target, encoded.
+    """
+
+    env: DoughEnv
+    initial: Observation
+    settled: Observation
+    target: np.ndarray
+    obs: EncodedScene
+    goal: EncodedScene
+
+
+def prepare_problem(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, rng: np.random.Generator
+                    ) -> PreparedProblem:
+    """Reset the task's environment to ``problem``, settle it, and encode the settled dough and the goal
+    (in that order, resampling with ``rng``)."""
+    target = np.asarray(problem.target, np.float32)[: cfg.sim.observation_points]
+    env = make_env(cfg)
+    initial = env.reset(problem.initial)
+    settled = env.settle(cfg.sim.settle_steps)
+    obs = encode_scene(cfg, bundle, settled.dough_points, rng)
+    return PreparedProblem(env, initial, settled, target, obs, encode_scene(cfg, bundle, target, rng))
+
+
 def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, seed: int,
                      executor: str, settings: PlanSettings) -> EvaluationResult:
     """Plan and execute one problem; ``seed`` replaces ``settings.seed`` and seeds every resampling.
@@ -119,22 +152,17 @@ def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels, problem: Evaluation
         raise ValueError(f"problem {problem.config_id} is a {problem.task} problem, the config is {cfg.task}")
     settings = dataclasses.replace(settings, seed=seed)
     rng = np.random.default_rng([seed, problem.config_id])
-    target = np.asarray(problem.target, np.float32)[: cfg.sim.observation_points]
-
-    env = make_env(cfg)
-    initial = env.reset(problem.initial)
+    prepared = prepare_problem(cfg, bundle, problem, rng)
+    initial, target = prepared.initial, prepared.target
     emd_initial = shape_distance(initial.dough_points, problem.target, seed)
-    settled = env.settle(cfg.sim.settle_steps)
-    obs_scene = encode_scene(cfg, bundle, settled.dough_points, rng)
-    goal_scene = encode_scene(cfg, bundle, target, rng)
     started = time.perf_counter()
     try:
-        the_plan = make_plan(cfg, bundle, problem, obs_scene.latents, goal_scene.latents, settings)
+        the_plan = make_plan(cfg, bundle, problem, prepared.obs.latents, prepared.goal.latents, settings)
     except NoSkillSequenceError as error:
         the_plan = None
-        execution = Execution(steps=(), final=settled, failure=f"planning: {error}")
+        execution = Execution(steps=(), final=prepared.settled, failure=f"planning: {error}")
     else:
-        execution = execute_plan(cfg, bundle, env, the_plan, executor, rng)
+        execution = execute_plan(cfg, bundle, prepared.env, the_plan, executor, rng)
 
     emd_final = shape_distance(execution.final.dough_points, problem.target, seed)
     performance = float(normalised_performance(emd_initial, emd_final))

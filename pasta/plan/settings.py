@@ -4,11 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from pasta.config.schema import PLAN_COSTS as COSTS
 from pasta.config.schema import TaskConfig
 
 __all__ = ["COSTS", "DEFAULT_HALVING", "PlanSettings"]
-
-COSTS = ("learned", "decoded")  # the set cost of the objective (PlanSettings.cost)
 
 # Fractions of the iterations after which the worse half of the surviving samples is dropped
 # (successive halving; see docs/planning.md for the measurements behind this choice).

@@ -885,7 +885,7 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
     )
     key = (layout, sim.particle_lower_bound_cells, sim.boundary_cells)
     if key not in _SIMULATORS:
-        _SIMULATORS[key] = MPMSimulator(layout, sim.particle_lower_bound_cells, sim.boundary_cells, sim.arch)
+        _SIMULATORS[key] = MPMSimulator(layout, sim.particle_lower_bound_cells, sim.boundary_cells, arch)
     simulator = _SIMULATORS[key]
     simulator.set_gravity(sim.gravity_m_s2)
     simulator.set_softness(sim.contact_softness)

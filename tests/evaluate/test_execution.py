@@ -8,13 +8,12 @@ import torch
 from torch import nn
 
 from pasta.data.configurations import evaluation_problems, tool_clearance
-from pasta.evaluate.encoding import encode_scene
 from pasta.evaluate.execution import already_reached, execute_plan
 from pasta.evaluate.policy_action import NonFiniteActionError, checked_action
+from pasta.evaluate.problem import prepare_problem
 from pasta.models.vae import VAEConfig
 from pasta.plan.result import Plan
 from pasta.sim.engine import SimulationError
-from pasta.sim.envs import make_env
 from pasta.sim.tool_points import world_sdf
 from pasta.train.bundle import TrainedModels
 
@@ -58,16 +57,14 @@ def with_policies(bundle: TrainedModels, policy: nn.Module) -> TrainedModels:
 def cut_plan(cfg, bundle):
     """The first evaluation problem, settled, and a one-step plan: cut the box into the target's two pieces."""
     problem = evaluation_problems(cfg)[0]
-    env = make_env(cfg)
-    env.reset(problem.initial)
-    obs = env.settle(cfg.sim.settle_steps)
-    rng = np.random.default_rng(0)
-    start = encode_scene(cfg, bundle, obs.dough_points, rng)
-    goal = encode_scene(cfg, bundle, problem.target[: cfg.sim.observation_points], rng)
+    prepared = prepare_problem(cfg, bundle, problem, np.random.default_rng(0))
+    start, goal = prepared.obs, prepared.goal
     assert start.n_entities == 1 and goal.n_entities == 2
+    assert prepared.target.shape == (cfg.sim.observation_points, 3)
+    assert np.abs(prepared.settled.dough_points - prepared.initial.dough_points).max() > 0  # it settled
     plan = Plan(skills=("cut",), attention=((0,),), latent_sets=(start.latents, goal.latents), feasibilities=(1.0,),
                 cost=0.0, score=0.0, planning_time_s=0.0)
-    return env, plan
+    return prepared.env, plan
 
 
 def test_checked_action_clips_finite_actions_and_names_bad_ones():
