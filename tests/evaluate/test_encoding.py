@@ -46,3 +46,9 @@ def test_encoding_is_reproducible_with_the_same_generator(cfg, bundle):
     a = encode_scene(cfg, bundle, points, np.random.default_rng(7))
     b = encode_scene(cfg, bundle, points, np.random.default_rng(7))
     torch.testing.assert_close(a.latents, b.latents, rtol=0, atol=0)
+    np.testing.assert_array_equal(a.entities, b.entities)
+    other = encode_scene(cfg, bundle, points, np.random.default_rng(8))
+    np.testing.assert_array_equal(other.labels, a.labels)  # the same entities ...
+    for k in range(2):  # ... each resampled differently, so encoded differently
+        assert not np.array_equal(other.entities[k], a.entities[k]), k
+        assert not torch.equal(other.latents[k], a.latents[k]), k

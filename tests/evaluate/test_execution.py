@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 import torch
@@ -99,11 +101,35 @@ def test_scripted_execution_acts_on_the_piece_and_parks_the_tool(cfg, bundle):
     np.testing.assert_array_equal(execution.final.dough_points, env.observation().dough_points)
 
 
-def test_policy_execution_runs_the_policy_for_the_skill_budget(cfg, bundle):
+def test_policy_execution_runs_the_policy_for_the_skill_budget(cfg, bundle, monkeypatch):
     env, plan = cut_plan(cfg, bundle)
-    policy = ScriptedOutputs([[0.0] * bundle.action_dim])
+    knife_action = np.array([0.2, -0.1, 0.0])  # small: neither the [-1, 1] clip nor the knife's bounds bite
+    action = env.action_for("knife", knife_action)
+    policy = ScriptedOutputs([action.tolist()])
+    steps = []  # (action, tool poses before, tool poses after) of every environment step, as they happen
+    real_step = env.step
+
+    def recorded_step(taken):
+        before = env.tool_poses()
+        observation = real_step(taken)
+        steps.append((np.array(taken), before, env.tool_poses()))
+        return observation
+
+    monkeypatch.setattr(env, "step", recorded_step)
     execute_plan(cfg, with_policies(bundle, policy), env, plan, "policy", np.random.default_rng(0))
-    assert policy.calls == cfg.sim.steps_per_skill
+    n = cfg.sim.steps_per_skill
+    assert policy.calls == n
+    assert len(steps) == n + cfg.sim.settle_steps
+    for taken, _, _ in steps[:n]:
+        np.testing.assert_array_equal(taken, action)  # the policy's action reached the simulator
+    assert not any(taken.any() for taken, _, _ in steps[n:]), "then the dough settles"
+    for (_, _, after), (_, before, _) in itertools.pairwise(steps[:n]):
+        np.testing.assert_array_equal(before["knife"].pos, after["knife"].pos)  # no teleport in between
+    start, end = steps[0][1], steps[n - 1][2]
+    scales = np.array(env.tool("knife").action_scales)
+    np.testing.assert_allclose(np.array(end["knife"].pos) - np.array(start["knife"].pos), knife_action * scales * n,
+                               rtol=1e-4, atol=1e-6)
+    np.testing.assert_array_equal(end["gripper"].pos, start["gripper"].pos)  # only the knife was driven
 
 
 def test_a_step_whose_subgoal_is_already_reached_is_skipped(cfg, bundle):

@@ -31,5 +31,17 @@ def test_policy_action_on_cuda_matches_the_cpu(cfg, variant):
 
 
 def test_policy_action_is_a_finite_vector_of_the_action_size(cfg, bundle):
-    action = policy_action(bundle, "cut", _seen(np.random.default_rng(1)))
+    seen = _seen(np.random.default_rng(1))
+    action = policy_action(bundle, "cut", seen)
     assert action.shape == (10,) and action.dtype == np.float64 and np.isfinite(action).all()
+
+    def batch(points: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(points.astype(np.float32)).unsqueeze(0)
+
+    with torch.no_grad():
+        direct = bundle.policy("cut")(batch(seen.obs_points), batch(seen.tool_points), batch(seen.goal_points))
+    np.testing.assert_array_equal(action, direct.reshape(-1).double().numpy())
+    with torch.no_grad():
+        rearrange = bundle.policy("rearrange")(batch(seen.obs_points), batch(seen.tool_points),
+                                               batch(seen.goal_points))
+    assert not np.array_equal(action, rearrange.reshape(-1).double().numpy()), "the cut skill's own policy"

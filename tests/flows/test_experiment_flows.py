@@ -34,6 +34,9 @@ def test_ablations_are_child_runs_of_one_parent_and_a_rerun_adds_nothing(prefect
     assert sorted(children["tags.pasta.variant"]) == sorted(variants)
     assert set(children["tags.mlflow.parentRunId"]) == {parents.iloc[0]["run_id"]}
     assert set(children["tags.pasta.experiment"]) == {"ablation"}
+    for _, child in children.iterrows():  # one seed and one configuration: the success of that configuration
+        assert child["metrics.success_config_0"] in (0.0, 1.0)
+        assert results[child["tags.pasta.variant"]]["success_mean"] == pytest.approx(child["metrics.success_config_0"])
     report = (tmp_path / "reports" / "CutRearrange" / "report.md").read_text()
     table5 = report[report.index("### Table 5"):]
     assert "| shared_encoder_policy | 1 |" in table5 and "| pasta | 1 |" in table5

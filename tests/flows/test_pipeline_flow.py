@@ -50,6 +50,9 @@ def test_pipeline_resumes_after_an_interruption_and_skips_finished_steps(prefect
     assert stages["train"] == 1 and stages["evaluate"] == 1
     evaluation = runs[runs["tags.pasta.stage"] == "evaluate"].iloc[0]
     assert evaluation["status"] == "FINISHED" and evaluation["tags.pasta.experiment"] == "main"
+    per_config = [evaluation[f"metrics.success_config_{i}"] for i in (0, 1)]
+    assert set(per_config) <= {0.0, 1.0}
+    assert resumed["evaluation"]["success_mean"] == pytest.approx(sum(per_config) / 2)  # one seed, two configurations
 
     markdown = tmp_path / "reports" / "CutRearrange" / "report.md"
     assert str(markdown) in resumed["report"]

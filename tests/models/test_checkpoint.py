@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -53,8 +55,12 @@ def test_round_trip_gives_identical_outputs(tmp_path):
 def test_failed_save_keeps_the_old_file(tmp_path):
     models = build_models("pasta", 4, tiny_model_config())
     path = save_checkpoint(tmp_path / "model.pt", models, None, 1, {})
-    with pytest.raises(Exception):  # noqa: B017 - whatever torch.save raises for an unpicklable config
+    # pickle's error for a function defined in a test: "Can't pickle local object '...<lambda>'"
+    with pytest.raises(AttributeError, match=r"Can't pickle local object '.*<lambda>'") as failure:
         save_checkpoint(path, models, None, 2, {"bad": lambda: None})
+    # it failed while torch.save was writing the payload, not before writing started
+    assert any(entry.name == "atomic_write_bytes" for entry in failure.traceback)
+    assert any(entry.name == "save" and Path(entry.path).name == "serialization.py" for entry in failure.traceback)
     assert load_checkpoint(path).epoch == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt"]
 

@@ -33,6 +33,15 @@ def test_prior_from_centres_and_validation():
 def test_random_negatives_shapes():
     obs, goal = random_negatives(PRIOR, 7, 1, 2, torch.Generator().manual_seed(1))
     assert obs.shape == (7, 1, 5) and goal.shape == (7, 2, 5)
+    low, high = torch.tensor(PRIOR.t_low), torch.tensor(PRIOR.t_high)
+    for u in (obs, goal):
+        t = u[..., 2:]
+        assert bool(((t >= low) & (t <= high)).all()), "every centre lies inside the prior's box"
+    assert not torch.equal(obs[:, 0], goal[:, 0]) and not torch.equal(goal[:, 0], goal[:, 1]), "independent draws"
+    again = random_negatives(PRIOR, 7, 1, 2, torch.Generator().manual_seed(1))
+    assert torch.equal(again[0], obs) and torch.equal(again[1], goal)
+    other = random_negatives(PRIOR, 7, 1, 2, torch.Generator().manual_seed(2))
+    assert not torch.equal(other[0], obs) and not torch.equal(other[1], goal)
 
 
 def test_latent_noise_scales_each_part():

@@ -99,7 +99,7 @@ def test_every_model_of_every_variant_trains(variant):
     clouds = box_clouds(8, 64, gen)
     vae.fit_scale(clouds)
     first, last = train(lambda: vae.elbo_loss(clouds, torch.Generator().manual_seed(0))[0], vae.parameters(), lr=3e-3)
-    assert last < first, "vae"
+    assert last < 0.5 * first, "vae"  # measured 0.26 of the first loss
 
     k = 1 if spec.whole_scene_latent else 2
     obs = torch.cat([torch.randn(16, k, 2, generator=gen), 0.3 + 0.4 * torch.rand(16, k, 3, generator=gen)], -1)
@@ -111,14 +111,15 @@ def test_every_model_of_every_variant_trains(variant):
         lambda: weighted_mse(feasibility(batch.obs, batch.goal, batch.obs_mask, batch.goal_mask), batch.labels,
                              batch.weights),
         feasibility.parameters(),
+        steps=50,
         lr=3e-3,
     )
-    assert last < first, "feasibility"
+    assert last < 0.5 * first, "feasibility"  # measured 0.31 to 0.33
 
     u_a, u_b = torch.randn(32, 5, generator=gen), torch.randn(32, 5, generator=gen)
     target = (u_a - u_b).square().sum(-1) / 10
     first, last = train(lambda: (cost(u_a, u_b) - target).square().mean(), cost.parameters())
-    assert last < first, "cost"
+    assert last < 0.5 * first, "cost"  # measured 0.15 to 0.19
 
-    first, last = train(policy_loss(policy, gen), policy.parameters(), lr=3e-3)
-    assert last < first, "policy"
+    first, last = train(policy_loss(policy, gen), policy.parameters(), steps=70, lr=3e-3)
+    assert last < 0.5 * first, "policy"  # measured 0.03 to 0.37

@@ -43,3 +43,6 @@ def test_sampling_is_seeded():
     a = sample_structures((CUT, MOVE, MOVE), 1, 50, torch.Generator().manual_seed(3))
     b = sample_structures((CUT, MOVE, MOVE), 1, 50, torch.Generator().manual_seed(3))
     assert all(torch.equal(x, y) for x, y in zip(a.attention, b.attention, strict=True))
+    assert all(torch.equal(x, y) for x, y in zip(a.sets, b.sets, strict=True))
+    other = sample_structures((CUT, MOVE, MOVE), 1, 50, torch.Generator().manual_seed(4))
+    assert not all(torch.equal(x, y) for x, y in zip(a.attention, other.attention, strict=True))

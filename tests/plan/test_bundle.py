@@ -39,8 +39,19 @@ def test_untrained_bundle_receding_horizon():
     gen = torch.Generator().manual_seed(0)
     obs, goal = PRIOR.sample((1,), gen), PRIOR.sample((3,), gen)
     settings = PlanSettings(lr=0.01, iterations=3, samples=4, alpha=100.0)
-    result = plan_receding_horizon(bundle, obs, goal, ("cut", "push", "spread") * 2, 3, settings)
+    sequence = ("cut", "push", "spread") * 2
+    result = plan_receding_horizon(bundle, obs, goal, sequence, 3, settings)
+    assert result.skills == sequence
     assert [u.shape[0] for u in result.latent_sets] == [1, 2, 2, 2, 3, 3, 3]
+    torch.testing.assert_close(result.latent_sets[0], obs)
+    arity = {s.name: (s.n_in, s.n_out) for s in bundle_skills(bundle)}
+    for h, skill in enumerate(sequence, start=1):
+        before, after, attended = result.latent_sets[h - 1], result.latent_sets[h], result.attention[h - 1]
+        n_in, n_out = arity[skill]
+        assert len(attended) == n_in and len(set(attended)) == n_in and max(attended) < before.shape[0]
+        kept = [i for i in range(before.shape[0]) if i not in attended]
+        assert after.shape[0] == n_out + len(kept)
+        torch.testing.assert_close(after[n_out:], before[kept])  # U^h = [the new entities, then the kept ones]
 
 
 def test_whole_scene_variant_plans_one_entity():

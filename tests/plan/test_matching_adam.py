@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import itertools
 
+import pytest
 import torch
 
 from pasta.plan import best_matching, matched_pair_cost
@@ -28,10 +29,19 @@ def test_best_matching_is_optimal_for_square_and_partial_sets():
 
 
 def test_matched_pair_cost_is_differentiable():
-    costs = torch.rand((3, 2, 2), requires_grad=True)
-    rows, cols = best_matching(costs)
-    matched_pair_cost(costs, rows, cols).sum().backward()
-    assert float(costs.grad.sum()) == 6.0  # two pairs per batch element
+    gen = torch.Generator().manual_seed(1)
+    for k_a, k_g in [(2, 2), (2, 3), (3, 2)]:
+        costs = torch.rand((4, k_a, k_g), generator=gen, requires_grad=True)
+        rows, cols = best_matching(costs)
+        weights = torch.tensor([1.0, 2.0, 3.0, 4.0])  # tells the batch elements apart in the gradient
+        (matched_pair_cost(costs, rows, cols) * weights).sum().backward()
+        expected = torch.zeros_like(costs)
+        for b in range(4):
+            assert len(set(rows[b].tolist())) == len(set(cols[b].tolist())) == min(k_a, k_g), "a matching"
+            expected[b, rows[b], cols[b]] = weights[b]
+            assert float(costs.detach()[b, rows[b], cols[b]].sum()) == pytest.approx(_brute_force(costs[b].detach()))
+        # d cost / d pair cost is 1 at the matched pairs and 0 elsewhere, per batch element
+        torch.testing.assert_close(costs.grad, expected, rtol=0, atol=0)
 
 
 def test_row_adam_matches_torch_adam_and_drops_rows():

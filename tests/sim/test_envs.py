@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from PIL import Image
 from sklearn.cluster import DBSCAN
 
 from pasta.config import load
@@ -253,7 +254,28 @@ def test_demo_runs_for_cut_rearrange_at_smoke(tmp_path, capsys):
     assert png == tmp_path / "CutRearrange_smoke.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (tmp_path / "CutRearrange_smoke.gif").read_bytes()[:6] in (b"GIF89a", b"GIF87a")
-    assert str(png) in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert str(png) in out
+
+    # The same demo's physics at its own size (grid 32), from the same seed-0 configuration.
+    cfg = load("CutRearrange", "smoke")
+    env = make_env(cfg)
+    env.reset(env.default_configuration(np.random.default_rng(0)))
+    before, start = env.particles(), env.tool_poses()["knife"]
+    frames = demo.run_demo(env)
+    after, end = env.particles(), env.tool_poses()["knife"]
+    pieces = demo.count_pieces(after, cfg.data.dbscan_eps, cfg.data.dbscan_min_samples)
+    assert f"CutRearrange (smoke): {env.step_count} steps, {pieces} dough piece(s)" in out
+    with Image.open(tmp_path / "CutRearrange_smoke.gif") as gif:
+        assert gif.n_frames == len(frames) >= 3
+    # the knife went down over the dough's centre, slid 0.09 to -x and came back up to its height
+    centre = before.mean(axis=0)
+    np.testing.assert_allclose(end.pos, (centre[0] - 0.09, start.pos[1], centre[2]), atol=2e-4)
+    # and it pressed through the dough: the top came down and the dough spread along the slide
+    assert np.isfinite(after).all() and after.min() >= 0.0 and after.max() <= 1.0
+    assert after[:, 1].max() < before[:, 1].max() - 0.005
+    assert after[:, 1].mean() < before[:, 1].mean() - 0.01
+    assert np.ptp(after[:, 0]) > np.ptp(before[:, 0]) + 0.05
 
 
 @pytest.mark.slow

@@ -29,9 +29,25 @@ def test_render_state_writes_a_valid_png(tmp_path):
     assert [p.name for p in path.parent.iterdir()] == ["state.png"]  # no temporary file left
 
 
+def _pixels(path) -> np.ndarray:
+    with Image.open(path) as image:
+        assert image.format == "PNG"
+        return np.asarray(image.convert("RGB"))
+
+
 def test_render_state_without_tools(tmp_path):
-    path = render_state(_state()["dough_points"], {}, tmp_path / "bare.png")
+    s = _state()
+    path = render_state(s["dough_points"], {}, tmp_path / "bare.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    bare = _pixels(path)
+    # the same state given as float64 draws the same picture
+    again = render_state(s["dough_points"].astype(np.float64), {}, tmp_path / "again.png")
+    np.testing.assert_array_equal(_pixels(again), bare)
+    with_tools = _pixels(render_state(s["dough_points"], s["tool_points"], tmp_path / "tools.png"))
+    assert with_tools.shape == bare.shape
+    assert (with_tools != bare).any(-1).sum() > 100, "the knife is drawn"
+    moved = _pixels(render_state(s["dough_points"] + np.array([0.2, 0.0, 0.0]), {}, tmp_path / "moved.png"))
+    assert (moved != bare).any(-1).sum() > 100, "the dough is drawn where it is"
 
 
 def test_render_strip_writes_frames_side_by_side_and_a_gif(tmp_path):
@@ -54,6 +70,10 @@ def test_render_strip_accepts_observation_like_objects(tmp_path):
 
     png = render_strip([Frame(_state(0)), Frame(_state(1))], tmp_path / "obs.png")
     assert png.exists()
+    as_mappings = render_strip([_state(0), _state(1)], tmp_path / "dicts.png")
+    np.testing.assert_array_equal(_pixels(png), _pixels(as_mappings))  # objects and mappings draw alike
+    swapped = render_strip([_state(1), _state(0)], tmp_path / "swapped.png")
+    assert (_pixels(swapped) != _pixels(png)).any(), "each frame draws its own state"
 
 
 def test_bad_inputs_raise_and_write_nothing(tmp_path):

@@ -70,7 +70,7 @@ def test_vae_training_lowers_the_loss_and_keeps_the_best(tmp_path, training_data
                        tmp_path / "vae.pt", on_epoch=lambda s, e, m: seen.append((s, e)))
     assert seen == [("vae", 0), ("vae", 1), ("vae", 2)]
     losses = [h["vae_train_loss"] for h in result.history]
-    assert losses[-1] < losses[0]
+    assert losses[-1] < 0.7 * losses[0], losses  # measured 1.43 -> 0.76
     assert result.heldout_chamfer == min(h["vae_heldout_chamfer_epoch"] for h in result.history)
 
 
@@ -106,14 +106,19 @@ def test_vae_resume_continues_from_the_saved_epoch(tmp_path, training_data):
 def test_heads_resume_continues_from_the_saved_epoch_and_reports_metrics(tmp_path, cfg, training_data):
     config, vae, latents, prior, train, test = _setup(cfg, training_data, "pasta")
     held_out = HeldOut.build(test, latents)
+    # enough policy training to beat the all-zero action on the held-out transitions (measured 0.55 vs 0.67)
+    settings = dataclasses.replace(SETTINGS, epochs=8, policy_lr=3e-3)
 
     def fit(path, on_epoch=None):
-        return train_heads(cfg, "pasta", vae, latents, train, held_out, prior, SETTINGS, path, model_config=config,
+        return train_heads(cfg, "pasta", vae, latents, train, held_out, prior, settings, path, model_config=config,
                            on_epoch=on_epoch)
 
     straight = fit(tmp_path / "a.pt")
     for key in ("feasibility_auc_random", "feasibility_auc_hard", "cost_r2", "policy_mse", "policy_zero_mse"):
         assert np.isfinite(straight.metrics[key]), key
+    metrics = straight.metrics
+    assert metrics["policy_mse"] < 0.9 * metrics["policy_zero_mse"], metrics
+    assert metrics["feasibility_auc_random"] > 0.8, metrics  # measured 1.0; 0.5 is chance
 
     def stop(stage, epoch, metrics):
         assert (stage, epoch) == ("heads", 0)
@@ -123,7 +128,7 @@ def test_heads_resume_continues_from_the_saved_epoch_and_reports_metrics(tmp_pat
         fit(tmp_path / "b.pt", stop)
     epochs = []
     resumed = fit(tmp_path / "b.pt", lambda s, e, m: epochs.append(e))
-    assert epochs == [1]
+    assert epochs == list(range(1, settings.epochs))
     for name in ("feasibility", "cost", "policy"):
         a, b = straight.bundle.models[name].state_dict(), resumed.bundle.models[name].state_dict()
         for key in a:
