@@ -4,7 +4,8 @@
     pasta sim-demo --task CutRearrange [--profile smoke] [--out DIR]
     pasta train --task CutRearrange [--profile smoke] [--variant pasta] [--method gbto|scripted]
     pasta report [--task CutRearrange]
-    pasta evaluate --task CutRearrange [--profile smoke] [--variant pasta] [--executor scripted] [--seeds 0 1 2]
+    pasta evaluate --task CutRearrange [--profile smoke] [--variant pasta] [--plan oracle] [--executor scripted]
+                   [--seeds 0 1 2]
 
 Each subcommand imports what it needs (the simulator, torch, ...) only when it runs.
 """
@@ -82,9 +83,17 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     evaluate_flow = importlib.import_module("flows.evaluate")
     summary = evaluate_flow.run(args.task, profile=args.profile, variant=args.variant, seeds=args.seeds,
                                 executor=args.executor, overrides=args.set, experiment=args.experiment,
-                                workers=args.workers, dask_address=args.dask_address)
+                                workers=args.workers, dask_address=args.dask_address, plan_source=args.plan)
     print(json.dumps(summary, indent=1))
+    print(json.dumps(evaluation_line(summary)))  # the last line, for scripts
     return 0
+
+
+def evaluation_line(summary: dict) -> dict:
+    """The one-line result of ``pasta evaluate``: what was run and its scores over seeds."""
+    keys = ("task", "profile", "plan", "executor", "seeds", "performance_mean", "performance_std", "success_mean",
+            "success_std")
+    return {key: summary[key] for key in keys}
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -180,10 +189,14 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate = sub.add_parser("evaluate", help="plan and execute the 5 test configurations (Prefect flow, MLflow runs)")
     _add_task_profile(evaluate)
     evaluate.add_argument("--variant", default="pasta", help="trained variant to evaluate (default pasta)")
+    evaluate.add_argument("--plan", default="learned", choices=("learned", "oracle"),
+                          help="plan with the trained networks, or take the generator's own subgoals (oracle; "
+                               "with --executor scripted it needs no trained models)")
     evaluate.add_argument("--executor", default="policy", choices=("policy", "scripted"),
                           help="run the skills with the learned policies or the scripted skills")
     evaluate.add_argument("--seeds", type=int, nargs="+", default=None, help="seeds (default: cfg.eval.seeds)")
-    evaluate.add_argument("--experiment", default="main", help="pasta.experiment tag (default main)")
+    evaluate.add_argument("--experiment", default=None,
+                          help="pasta.experiment tag (default main, or oracle_plan with --plan oracle)")
     _add_worker_options(evaluate, workers=1)
     evaluate.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     evaluate.set_defaults(func=_cmd_evaluate)

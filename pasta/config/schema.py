@@ -55,7 +55,8 @@ class SimConfig(Frozen):
     particle_lower_bound_cells: int = Field(default=0, ge=0, le=8)
     contact_softness: float = Field(default=0.0, ge=0)
     optimisation_contact_softness: float = Field(default=666.0, ge=0)
-    # Grid nodes inside a tool leave it at this fraction of their depth per substep. The official
+    # Grid nodes inside a tool leave it at this fraction of their depth per substep (each tool may set
+    # its own, `tools[].expel_rate`: the spatulas and grippers hold dough only with 0). The official
     # simulator had none (0); at our grids the dough then leaks into the 0.05-thick knife and a cut
     # never separates (docs/simulator.md).
     tool_expel_rate: float = Field(default=0.1, ge=0, le=1)
@@ -111,6 +112,10 @@ class ToolConfig(Frozen):
     upper_bound: Vec3 = (1.0, 1.0, 1.0)
     static: bool = False
     collides_with: tuple[str, ...] = ()
+    # Grid nodes inside this tool leave it at this fraction of their depth per substep; None takes
+    # ``sim.tool_expel_rate``. The knife needs it to separate dough at coarse grids; a spatula or a
+    # gripper with it cannot hold dough (it rides on a frictionless cushion), so theirs is 0.
+    expel_rate: float | None = Field(default=None, ge=0, le=1)
 
     @model_validator(mode="after")
     def _check_geometry(self) -> ToolConfig:

@@ -92,6 +92,7 @@ from pasta.sim.tool_points import world_sdf
 __all__ = [
     "EllipsoidPiece",
     "EvaluationProblem",
+    "OracleStep",
     "Stage",
     "SkillProblem",
     "evaluation_problem",
@@ -99,6 +100,7 @@ __all__ = [
     "flat_height_range",
     "floor_shift",
     "generate_skill_problems",
+    "oracle_chain",
     "skill_problem",
     "skill_schedule",
     "split_problems",
@@ -181,13 +183,29 @@ class SkillProblem:
 
 @dataclass(frozen=True, eq=False)
 class EvaluationProblem:
-    """One multi-skill evaluation configuration; ``skill_sequence`` is the intended solution."""
+    """One multi-skill evaluation configuration; ``skill_sequence`` is the intended solution, and
+    ``oracle_chain(cfg, config_id, generator_seed)`` its subgoals."""
 
     config_id: int
     task: str
     initial: DoughConfiguration
     target: np.ndarray
     skill_sequence: tuple[str, ...]
+    generator_seed: int = 1000
+
+
+@dataclass(frozen=True, eq=False)
+class OracleStep:
+    """One skill of an evaluation problem's ground-truth chain (the generator's own subgoals).
+
+    ``acted`` ``(N,)`` bool, read-only: the particles of the pieces the skill acts on, by identity (index
+    into the initial configuration's particles, which the simulator keeps in order). ``subgoal`` ``(N, 3)``
+    float32, read-only: every particle where the chain puts it after the skill.
+    """
+
+    skill: str
+    acted: np.ndarray
+    subgoal: np.ndarray
 
 
 # --------------------------------------------------------------- geometry
@@ -749,8 +767,8 @@ def generate_skill_problems(cfg: TaskConfig, seed: int = 0) -> list[SkillProblem
     return [skill_problem(cfg, i, seed) for i in range(len(skill_schedule(cfg)))]
 
 
-def evaluation_problem(cfg: TaskConfig, config_id: int, seed: int = 1000) -> EvaluationProblem:
-    """Evaluation problem ``config_id`` alone (a whole chain of ``cfg.horizon`` skills)."""
+def _evaluation_chain(cfg: TaskConfig, config_id: int, seed: int) -> tuple[_Chain, list[Stage]]:
+    """Evaluation problem ``config_id``'s chain and its checked stages (stage 0 = initial, last = target)."""
     try:
         build = _EVAL_CHAINS[cfg.task]
     except KeyError:
@@ -762,6 +780,12 @@ def evaluation_problem(cfg: TaskConfig, config_id: int, seed: int = 1000) -> Eva
     stages = _sample_stages(cfg, rng, chain, len(chain.transforms))
     for k, stage in enumerate(stages):
         _check_stage(cfg, stage, f"{cfg.task} evaluation problem {config_id}, stage {k}")
+    return chain, stages
+
+
+def evaluation_problem(cfg: TaskConfig, config_id: int, seed: int = 1000) -> EvaluationProblem:
+    """Evaluation problem ``config_id`` alone (a whole chain of ``cfg.horizon`` skills)."""
+    chain, stages = _evaluation_chain(cfg, config_id, seed)
     poses = _tool_poses(cfg, chain.skills[0], stages[0], chain.acted[0])
     return EvaluationProblem(
         config_id=int(config_id),
@@ -769,7 +793,24 @@ def evaluation_problem(cfg: TaskConfig, config_id: int, seed: int = 1000) -> Eva
         initial=_configuration(stages[0], poses, stages[-1]),
         target=_read_only(stages[-1].points),
         skill_sequence=tuple(chain.skills),
+        generator_seed=int(seed),
     )
+
+
+def oracle_chain(cfg: TaskConfig, config_id: int, seed: int = 1000) -> tuple[OracleStep, ...]:
+    """The generator's own solution of evaluation problem ``config_id``: per skill, the pieces it acts on
+    and the stage it must reach. The last step's ``subgoal`` equals ``evaluation_problem(...).target``."""
+    chain, stages = _evaluation_chain(cfg, config_id, seed)
+    return tuple(
+        OracleStep(skill=skill, acted=_read_only_mask(np.isin(before.labels, acted)), subgoal=_read_only(after.points))
+        for skill, acted, before, after in zip(chain.skills, chain.acted, stages[:-1], stages[1:], strict=True)
+    )
+
+
+def _read_only_mask(mask: np.ndarray) -> np.ndarray:
+    arr = np.array(mask, dtype=bool)
+    arr.flags.writeable = False
+    return arr
 
 
 def evaluation_problems(cfg: TaskConfig, seed: int = 1000) -> list[EvaluationProblem]:

@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from pasta.plan.result import Plan
 
 __all__ = ["EXECUTORS", "SKIP_CHAMFER", "Execution", "StepRecord", "already_reached", "check_executor", "decode_set",
-           "execute_plan", "park_tool"]
+           "execute_plan", "park_tool", "run_skill"]
 
 EXECUTORS = ("policy", "scripted")
 SKIP_CHAMFER = 1e-3  # official exec_threshold: the dough already is the subgoal (squared Chamfer units)
@@ -141,6 +141,40 @@ def _run_policy(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, pla
         env.step(checked_action(policy_action(bundle, skill, seen), skill, plan_step, k))
 
 
+def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step: int, mask: np.ndarray,
+              target: np.ndarray, executor: str, goal_points: np.ndarray, goal_latents: torch.Tensor | None,
+              rng: np.random.Generator) -> str | None:
+    """One plan step in the simulator: place the skill's tool by the attended dough, act for the skill's budget
+    (scripted toward ``target``, or the policy toward the new subgoals), settle. The tool is left where it is.
+
+    Args:
+        mask: ``(P,)`` bool over the observation points: the dough the skill acts on.
+        target: ``(Q, 3)`` the whole scene after the skill (the scripted skills' subgoal).
+        goal_points: ``(N_g, 3)`` the new subgoals stacked, and ``goal_latents`` ``(N_out, D_z + 3)`` their
+            latents: what the policy sees (unused by the scripted skills; ``bundle`` may then be None).
+
+    Returns:
+        None, or why the simulation blew up (step and value); the state before the skill is then restored.
+    """
+    cfg = env.cfg
+    before_skill = env.get_state()
+    try:
+        place_tool_for_skill(env, skill, mask, target)
+        if executor == "scripted":
+            for action in scripted_actions(env, skill, target, mask):
+                env.step(action)
+        else:
+            if bundle is None:
+                raise ValueError(f"the policy executor needs trained models (skill {skill!r})")
+            _run_policy(env, bundle, skill, skill_tool(cfg, skill).name, plan_step, np.flatnonzero(mask),
+                        goal_points, goal_latents, rng)
+        env.settle(cfg.sim.settle_steps)
+    except SimulationError as error:
+        env.set_state(before_skill)
+        return f"plan step {plan_step} ({skill}): {error}"
+    return None
+
+
 def execute_plan(cfg: TaskConfig, bundle: TrainedModels, env: DoughEnv, plan: Plan, executor: str,
                  rng: np.random.Generator) -> Execution:
     """Execute ``plan`` from the environment's current (settled) state, the one ``U^0`` was encoded from."""
@@ -163,18 +197,8 @@ def execute_plan(cfg: TaskConfig, bundle: TrainedModels, env: DoughEnv, plan: Pl
         centres = None if h == 1 else before[list(attention), latent_dim:].detach().cpu().numpy()
         mask = attended_mask(points, labels, attention, centres)
         target = np.concatenate([new_subgoals, points[~mask]])
-        before_skill = env.get_state()
-        try:
-            place_tool_for_skill(env, skill, mask, target)
-            if executor == "scripted":
-                for action in scripted_actions(env, skill, target, mask):
-                    env.step(action)
-            else:
-                _run_policy(env, bundle, skill, tool, h, np.flatnonzero(mask), new_subgoals, after[:n_out], rng)
-            env.settle(cfg.sim.settle_steps)
-        except SimulationError as error:
-            env.set_state(before_skill)
-            return Execution(steps=tuple(records), final=env.observation(),
-                             failure=f"plan step {h} ({skill}): {error}")
+        failure = run_skill(env, bundle, skill, h, mask, target, executor, new_subgoals, after[:n_out], rng)
+        if failure is not None:
+            return Execution(steps=tuple(records), final=env.observation(), failure=failure)
         records.append(StepRecord(skill, everything, new_subgoals, mask, False, park_tool(env, tool)))
     return Execution(steps=tuple(records), final=env.observation())

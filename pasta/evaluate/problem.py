@@ -21,10 +21,11 @@ import numpy as np
 import torch
 
 from pasta.config.schema import TaskConfig
-from pasta.data.configurations import EvaluationProblem
+from pasta.data.configurations import EvaluationProblem, oracle_chain
 from pasta.evaluate.encoding import EncodedScene, encode_scene
 from pasta.evaluate.execution import Execution, check_executor, decode_set, execute_plan
 from pasta.evaluate.metrics import planned_goal_distance, shape_distance
+from pasta.evaluate.oracle import check_plan_source, execute_oracle
 from pasta.geometry.distances import is_success, normalised_performance
 from pasta.plan import NoSkillSequenceError, Plan, PlanSettings, plan, plan_receding_horizon
 from pasta.sim.envs import make_env
@@ -72,6 +73,7 @@ class EvaluationResult:
     skipped: tuple[bool, ...]
     frames: tuple[Frame, ...]
     failure: str | None = None
+    plan_source: str = "learned"
 
     def row(self) -> dict[str, Any]:
         """The table row (``tables/evaluation.json``)."""
@@ -115,71 +117,112 @@ class PreparedProblem:
         initial: the observation at reset, before settling.
         settled: the observation after ``cfg.sim.settle_steps`` zero actions (what the plan starts from).
         target: ``(P, 3)`` the goal's first ``cfg.sim.observation_points`` points.
-        obs: the settled dough, encoded.
-        goal: the target, encoded.
+        obs: the settled dough, encoded (None without trained models).
+        goal: the target, encoded (None without trained models).
     """
 
     env: DoughEnv
     initial: Observation
     settled: Observation
     target: np.ndarray
-    obs: EncodedScene
-    goal: EncodedScene
+    obs: EncodedScene | None
+    goal: EncodedScene | None
 
 
-def prepare_problem(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, rng: np.random.Generator
-                    ) -> PreparedProblem:
+def prepare_problem(cfg: TaskConfig, bundle: TrainedModels | None, problem: EvaluationProblem,
+                    rng: np.random.Generator) -> PreparedProblem:
     """Reset the task's environment to ``problem``, settle it, and encode the settled dough and the goal
-    (in that order, resampling with ``rng``)."""
+    (in that order, resampling with ``rng``); without a ``bundle`` nothing is encoded (``obs``, ``goal`` None)."""
     target = np.asarray(problem.target, np.float32)[: cfg.sim.observation_points]
     env = make_env(cfg)
     initial = env.reset(problem.initial)
     settled = env.settle(cfg.sim.settle_steps)
+    if bundle is None:
+        return PreparedProblem(env, initial, settled, target, None, None)
     obs = encode_scene(cfg, bundle, settled.dough_points, rng)
     return PreparedProblem(env, initial, settled, target, obs, encode_scene(cfg, bundle, target, rng))
 
 
-def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, seed: int,
-                     executor: str, settings: PlanSettings) -> EvaluationResult:
-    """Plan and execute one problem; ``seed`` replaces ``settings.seed`` and seeds every resampling.
+@dataclass(frozen=True, eq=False)
+class _Outcome:
+    skills: tuple[str, ...]
+    attention: tuple[tuple[int, ...], ...]
+    planning_time_s: float
+    emd_planned_goal: float
+    execution: Execution
+    planned: bool
 
+
+def _learned_outcome(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, prepared: PreparedProblem,
+                     executor: str, settings: PlanSettings, rng: np.random.Generator, seed: int) -> _Outcome:
+    started = time.perf_counter()
+    try:
+        the_plan = make_plan(cfg, bundle, problem, prepared.obs.latents, prepared.goal.latents, settings)
+    except NoSkillSequenceError as error:
+        execution = Execution(steps=(), final=prepared.settled, failure=f"planning: {error}")
+        return _Outcome((), (), time.perf_counter() - started, float("nan"), execution, False)
+    execution = execute_plan(cfg, bundle, prepared.env, the_plan, executor, rng)
+    return _Outcome(
+        skills=tuple(the_plan.skills),
+        attention=tuple(tuple(int(i) for i in a) for a in the_plan.attention),
+        planning_time_s=float(the_plan.planning_time_s),
+        emd_planned_goal=planned_goal_distance(decode_set(bundle, the_plan.latent_sets[-1]), prepared.target, seed),
+        execution=execution,
+        planned=True,
+    )
+
+
+def _oracle_outcome(cfg: TaskConfig, bundle: TrainedModels | None, problem: EvaluationProblem,
+                    prepared: PreparedProblem, executor: str, rng: np.random.Generator) -> _Outcome:
+    chain = oracle_chain(cfg, problem.config_id, problem.generator_seed)
+    done = execute_oracle(cfg, prepared.env, chain, executor, bundle, rng)
+    # The oracle's last subgoal is the goal itself: its planned-goal distance is 0 by construction.
+    return _Outcome(tuple(step.skill for step in chain), done.attention, 0.0, 0.0, done.execution, True)
+
+
+def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels | None, problem: EvaluationProblem, seed: int,
+                     executor: str, settings: PlanSettings, plan_source: str = "learned") -> EvaluationResult:
+    """Plan (or take the oracle's chain) and execute one problem; ``seed`` replaces ``settings.seed`` and seeds
+    every resampling.
+
+    ``plan_source`` ``"learned"`` plans with ``bundle``'s networks; ``"oracle"`` executes the generator's own
+    subgoals and attention (:mod:`pasta.evaluate.oracle`), and needs no ``bundle`` with the scripted executor.
     A problem the planner has no skill sequence for (the observation's entity count cannot reach the
     goal's with the task's skills in the horizon) is not executed: its ``failure`` says why, it is scored
     as the dough lies, and ``emd_planned_goal`` is NaN.
     """
     check_executor(executor)
+    check_plan_source(plan_source)
     if problem.task != cfg.task:
         raise ValueError(f"problem {problem.config_id} is a {problem.task} problem, the config is {cfg.task}")
+    if bundle is None and (plan_source == "learned" or executor == "policy"):
+        raise ValueError(f"plan {plan_source!r} with executor {executor!r} needs trained models")
     settings = dataclasses.replace(settings, seed=seed)
     rng = np.random.default_rng([seed, problem.config_id])
     prepared = prepare_problem(cfg, bundle, problem, rng)
     initial, target = prepared.initial, prepared.target
     emd_initial = shape_distance(initial.dough_points, problem.target, seed)
-    started = time.perf_counter()
-    try:
-        the_plan = make_plan(cfg, bundle, problem, prepared.obs.latents, prepared.goal.latents, settings)
-    except NoSkillSequenceError as error:
-        the_plan = None
-        execution = Execution(steps=(), final=prepared.settled, failure=f"planning: {error}")
+    if plan_source == "oracle":
+        outcome = _oracle_outcome(cfg, bundle, problem, prepared, executor, rng)
     else:
-        execution = execute_plan(cfg, bundle, prepared.env, the_plan, executor, rng)
-
+        outcome = _learned_outcome(cfg, bundle, problem, prepared, executor, settings, rng, seed)
+    execution = outcome.execution
     emd_final = shape_distance(execution.final.dough_points, problem.target, seed)
     performance = float(normalised_performance(emd_initial, emd_final))
     return EvaluationResult(
         config_id=problem.config_id,
-        skills=() if the_plan is None else tuple(the_plan.skills),
-        attention=() if the_plan is None else tuple(tuple(int(i) for i in a) for a in the_plan.attention),
+        skills=outcome.skills,
+        attention=outcome.attention,
         performance=performance,
         success=bool(is_success(performance, cfg.eval.success_threshold)),
-        planning_time_s=time.perf_counter() - started if the_plan is None else float(the_plan.planning_time_s),
+        planning_time_s=outcome.planning_time_s,
         emd_initial=emd_initial,
         emd_final=emd_final,
-        emd_planned_goal=(float("nan") if the_plan is None
-                          else planned_goal_distance(decode_set(bundle, the_plan.latent_sets[-1]), target, seed)),
+        emd_planned_goal=outcome.emd_planned_goal,
         emd_reached_goal=emd_final,
         executor=executor,
         skipped=tuple(step.skipped for step in execution.steps),
-        frames=_frames(initial, execution, target, reached="reached" if the_plan else "reached (not planned)"),
+        frames=_frames(initial, execution, target, reached="reached" if outcome.planned else "reached (not planned)"),
         failure=execution.failure,
+        plan_source=plan_source,
     )

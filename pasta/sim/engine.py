@@ -154,7 +154,7 @@ class MPMSimulator:
         self.ground_friction = ti.field(ti.f32, shape=())
         self.gravity = ti.Vector.field(3, ti.f32, shape=())
         self.softness = ti.field(ti.f32, shape=())
-        self.expel_rate = ti.field(ti.f32, shape=())
+        self.tool_expel_rate = ti.field(ti.f32, shape=n_tools)
         self.tool_half = ti.Vector.field(3, ti.f32, shape=n_tools)
         self.tool_radius = ti.field(ti.f32, shape=n_tools)
         self.tool_half_length = ti.field(ti.f32, shape=n_tools)
@@ -188,11 +188,15 @@ class MPMSimulator:
             raise ValueError(f"contact softness must be >= 0, got {softness}")
         self.softness[None] = softness
 
-    def set_expel_rate(self, rate: float) -> None:
-        """Fraction of its depth inside a tool that a grid node loses per substep (0: none, as official)."""
-        if not 0.0 <= rate <= 1.0:
-            raise ValueError(f"expel rate must be in [0, 1], got {rate}")
-        self.expel_rate[None] = rate
+    def set_expel_rates(self, rates: Sequence[float]) -> None:
+        """Per tool, the fraction of its depth inside the tool that a grid node loses per substep
+        (0: none, as official). One value per tool, in the compiled layout's order."""
+        if len(rates) != len(self.tool_kinds):
+            raise ValueError(f"expected {len(self.tool_kinds)} expel rates (one per tool), got {len(rates)}")
+        for k, rate in enumerate(rates):
+            if not 0.0 <= rate <= 1.0:
+                raise ValueError(f"expel rate of tool {k} must be in [0, 1], got {rate}")
+            self.tool_expel_rate[k] = rate
 
     def set_tools(self, tools: Sequence[ToolConfig]) -> None:
         """Set every tool's geometry, friction, bounds and action scales (runtime values)."""
@@ -502,7 +506,7 @@ class MPMSimulator:
         rel = v - v_tool
         normal_speed = rel.dot(normal)
         # Nodes inside the tool leave it at a speed that removes a fraction of their depth per substep.
-        expel = self.expel_rate[None] * ti.max(-sdf, 0.0) / self.dt
+        expel = self.tool_expel_rate[k] * ti.max(-sdf, 0.0) / self.dt
         removed = ti.min(normal_speed - expel, 0.0)
         tangential = rel - normal_speed * normal
         t_norm = ti.sqrt(tangential.dot(tangential) + 1e-20)
@@ -863,6 +867,11 @@ def collision_pairs(tools: Sequence[ToolConfig]) -> tuple[tuple[int, int], ...]:
     return tuple(pairs)
 
 
+def expel_rates(sim: SimConfig, tools: Sequence[ToolConfig]) -> tuple[float, ...]:
+    """Each tool's expel rate: its own ``expel_rate``, else the simulator's ``tool_expel_rate``."""
+    return tuple(sim.tool_expel_rate if t.expel_rate is None else t.expel_rate for t in tools)
+
+
 def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int | None = None,
                   differentiable: bool = False) -> MPMSimulator:
     """A simulator for this layout, shared within the process.
@@ -889,6 +898,6 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
     simulator = _SIMULATORS[key]
     simulator.set_gravity(sim.gravity_m_s2)
     simulator.set_softness(sim.contact_softness)
-    simulator.set_expel_rate(sim.tool_expel_rate)
+    simulator.set_expel_rates(expel_rates(sim, tools))
     simulator.set_tools(tools)
     return simulator

@@ -44,12 +44,17 @@ def test_evaluation_flow_plans_executes_and_logs_every_metric(prefect_server, is
     for name in names:
         assert np.isfinite(run[f"metrics.{name}"]), name
     assert run["metrics.performance"] == pytest.approx(summary["performance_mean"])
+    per_config = [run[f"metrics.success_config_{i}"] for i in (0, 1)]
+    assert set(per_config) <= {0.0, 1.0}
+    assert summary["success_mean"] == pytest.approx(np.mean(per_config))  # one seed: the mean over configurations
+    assert run["metrics.success_rate"] == pytest.approx(summary["success_mean"])
     assert run["metrics.emd_initial"] > 0
 
     client = mlflow.tracking.MlflowClient(uri)
     run_id = run["run_id"]
     table = json.loads(open(client.download_artifacts(run_id, "tables/evaluation.json")).read())
     assert [row["config_id"] for row in table] == [0, 1]
+    assert [float(row["success"]) for row in table] == per_config
     assert all(len(row["skills"]) == cfg.horizon and row["emd_reached_goal"] == row["emd_final"] for row in table)
     figures = {f.path for f in client.list_artifacts(run_id, "figures")}
     assert figures == {"figures/plan_config_0.png", "figures/plan_config_1.png"}
@@ -69,11 +74,41 @@ def test_cli_evaluate_arguments():
                                       "--set", "plan.samples=8"])
     assert (args.task, args.profile, args.variant, args.executor, args.seeds) == ("CRS", "smoke", "pasta",
                                                                                  "scripted", [0, 2])
-    assert args.set == ["plan.samples=8"] and args.experiment == "main"
+    assert args.set == ["plan.samples=8"] and args.experiment is None and args.plan == "learned"
     assert (args.workers, args.dask_address) == (1, None)
     assert build_parser().parse_args(["evaluate", "--task", "CRS"]).seeds is None
     on_dask = build_parser().parse_args(["evaluate", "--task", "CRS", "--dask-address", "tcp://scheduler:8786"])
     assert on_dask.dask_address == "tcp://scheduler:8786"
+
+
+def test_cli_oracle_plan_runs_without_models_and_ends_with_one_json_line(prefect_server, isolated_store, capsys):
+    """``pasta evaluate --plan oracle --executor scripted``: no trained models on disk, runs tagged with the plan
+    and the oracle_plan experiment, and the last line of standard output is the one-line JSON summary."""
+    from pasta.cli import main
+
+    _, uri = isolated_store
+    argv = ["evaluate", "--task", "CutRearrange", "--plan", "oracle", "--executor", "scripted", "--seeds", "1"]
+    for override in OVERRIDES:
+        argv += ["--set", override]
+    assert main(argv) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    line = json.loads(last)
+    assert (line["task"], line["profile"], line["plan"], line["executor"], line["seeds"]) == (
+        "CutRearrange", "smoke", "oracle", "scripted", [1])
+
+    mlflow.set_tracking_uri(uri)
+    runs = mlflow.search_runs(experiment_names=["pasta/CutRearrange"])
+    assert len(runs) == 1
+    run = runs.iloc[0]
+    assert run["tags.pasta.plan"] == "oracle" and run["tags.pasta.experiment"] == "oracle_plan"
+    assert run["tags.pasta.executor"] == "scripted"
+    assert line["performance_mean"] == pytest.approx(run["metrics.performance"])
+    per_config = [run[f"metrics.success_config_{i}"] for i in (0, 1)]
+    assert line["success_mean"] == pytest.approx(np.mean(per_config))
+    assert run["metrics.planning_time_s"] == 0.0 and run["metrics.emd_planned_goal"] == 0.0
+    table = json.loads(open(mlflow.tracking.MlflowClient(uri).download_artifacts(
+        run["run_id"], "tables/evaluation.json")).read())
+    assert [tuple(row["skills"]) for row in table] == [("cut", "rearrange", "rearrange")] * 2
 
 
 def _save_untrained_bundle() -> None:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pasta.config.schema import MaterialConfig, SimConfig, ToolConfig
-from pasta.sim.engine import MPMSimulator, simulator_for
+from pasta.sim.engine import MPMSimulator, expel_rates, simulator_for
 
 SIM = SimConfig(
     n_grid=32,
@@ -124,7 +124,7 @@ def simulator(tool: ToolConfig, layout: SimConfig = SIM) -> MPMSimulator:
     sim.set_material(MATERIAL)
     sim.set_gravity(layout.gravity_m_s2)
     sim.set_softness(layout.contact_softness)
-    sim.set_expel_rate(layout.tool_expel_rate)
+    sim.set_expel_rates(expel_rates(layout, (tool,)))
     sim.set_tools((tool,))
     return sim
 

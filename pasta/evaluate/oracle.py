@@ -1,0 +1,94 @@
+"""The oracle plan: execute an evaluation problem with the generator's own subgoals and attention.
+
+Every evaluation problem is a chain of stages drawn by one generator (:mod:`pasta.data.configurations`);
+:func:`pasta.data.configurations.oracle_chain` gives, per skill, the pieces it acts on (by particle identity)
+and the stage it must reach. Executing that chain with the scripted skills measures what the physics and the
+skills can reach at all (the ceiling of every learned plan); with the learned policies it measures the
+policies alone. Together with the learned plan this fills the plan x executor matrix of ``docs/evaluation.md``.
+
+For each step ``h``:
+
+1. the attended dough is the DBSCAN components of the observation whose points mostly belong to the acted
+   pieces (particle identity; :func:`attended_components`);
+2. the scripted skills aim at the whole next stage (first ``cfg.sim.observation_points`` particles); the
+   policies see the acted particles' places in the next stage, split into entities by DBSCAN and encoded
+   with the VAE (the new subgoals a learned plan would hand them);
+3. the step then runs as a learned plan's step does (:func:`pasta.evaluate.execution.run_skill`: place the
+   tool, act, settle), and the tool is parked.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pasta.config.schema import TaskConfig
+from pasta.data.configurations import OracleStep
+from pasta.data.skills import skill_tool
+from pasta.evaluate.encoding import encode_scene, segment
+from pasta.evaluate.execution import Execution, StepRecord, check_executor, park_tool, run_skill
+from pasta.sim.envs.base import DoughEnv
+from pasta.train.bundle import TrainedModels
+
+__all__ = ["PLAN_SOURCES", "OracleExecution", "attended_components", "check_plan_source", "execute_oracle"]
+
+PLAN_SOURCES = ("learned", "oracle")
+
+
+def check_plan_source(plan_source: str) -> str:
+    if plan_source not in PLAN_SOURCES:
+        raise ValueError(f"unknown plan {plan_source!r}; choose one of {list(PLAN_SOURCES)}")
+    return plan_source
+
+
+@dataclass(frozen=True, eq=False)
+class OracleExecution:
+    """The executed oracle chain and, per step, the DBSCAN entities of the observation it acted on."""
+
+    execution: Execution
+    attention: tuple[tuple[int, ...], ...]
+
+
+def attended_components(labels: np.ndarray, acted: np.ndarray) -> tuple[int, ...]:
+    """The DBSCAN components ``labels`` ``(P,)`` most of whose points are ``acted`` ``(P,)``; if none, those
+    holding any acted point. (A cut never splits exactly where the generator's plane did, so a few acted
+    particles may sit in a neighbouring piece.)"""
+    components = np.unique(labels[acted])
+    majority = tuple(int(k) for k in components if acted[labels == k].mean() > 0.5)
+    return majority or tuple(int(k) for k in components)
+
+
+def execute_oracle(cfg: TaskConfig, env: DoughEnv, chain: Sequence[OracleStep], executor: str,
+                   bundle: TrainedModels | None, rng: np.random.Generator) -> OracleExecution:
+    """Execute the ground-truth ``chain`` from the environment's current (settled) state.
+
+    ``bundle`` is needed by the policy executor only (its policies, and its VAE for the subgoal latents).
+    A step whose simulation blows up stops the execution; its ``failure`` names the step and the value.
+    """
+    check_executor(executor)
+    if executor == "policy" and bundle is None:
+        raise ValueError("the policy executor needs trained models; the scripted one runs without")
+    m = cfg.sim.observation_points
+    records: list[StepRecord] = []
+    attention: list[tuple[int, ...]] = []
+    for h, step in enumerate(chain, start=1):
+        points = np.asarray(env.observation().dough_points)
+        acted = np.asarray(step.acted[:m], dtype=bool)
+        labels = segment(cfg, points)
+        attended = attended_components(labels, acted)
+        attention.append(attended)
+        mask = np.isin(labels, attended)
+        subgoal = np.asarray(step.subgoal[:m], dtype=np.float32)
+        new_points = subgoal[acted]
+        goal_latents, goal_points = None, new_points
+        if executor == "policy":
+            encoded = encode_scene(cfg, bundle, new_points, rng)
+            goal_latents, goal_points = encoded.latents, encoded.entities.reshape(-1, 3)
+        failure = run_skill(env, bundle, step.skill, h, mask, subgoal, executor, goal_points, goal_latents, rng)
+        if failure is not None:
+            return OracleExecution(Execution(tuple(records), env.observation(), failure), tuple(attention))
+        tool = skill_tool(cfg, step.skill).name
+        records.append(StepRecord(step.skill, subgoal, new_points, mask, False, park_tool(env, tool)))
+    return OracleExecution(Execution(tuple(records), env.observation()), tuple(attention))
