@@ -61,6 +61,8 @@ def demo_rows(task: str, profile: str, n_demos: int, overrides: list[str]) -> li
                 cap = (demo.emd_initial - floor) / demo.emd_initial
                 rows.append({"task": task, "skill": skill, "config_id": config_id,
                              "performance": demo.normalised_performance, "cap": cap, "seconds": demo.seconds})
+                print(f"demo {task} {skill} {config_id}: {demo.normalised_performance:.3f} (cap {cap:.3f})",
+                      flush=True)
     return rows
 
 
@@ -76,6 +78,7 @@ def oracle_rows(task: str, profile: str, seeds: list[int], overrides: list[str])
             rows.append({"task": task, "seed": seed, "config_id": config_id, "performance": result.performance,
                          "success": result.success, "failure": result.failure,
                          "seconds": time.perf_counter() - started})
+            print(f"oracle {task} seed {seed} config {config_id}: {result.performance:.3f}", flush=True)
     return rows
 
 
