@@ -117,7 +117,8 @@ def main() -> None:
     parser.add_argument("--oracle-tasks", nargs="+", default=None, choices=TASK_NAMES,
                         help="tasks of the oracle part (default: --tasks)")
     parser.add_argument("--demos", type=int, default=10, help="single-skill demos per skill (0: none)")
-    parser.add_argument("--seeds", type=int, nargs="*", default=[0], help="oracle evaluation seeds (none: no oracle part)")
+    parser.add_argument("--seeds", type=int, nargs="*", default=[0],
+                        help="oracle evaluation seeds (none: no oracle part)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
