@@ -48,25 +48,26 @@ rearrange  gripper      open, over the piece, lower, close on it, move horizonta
                         target centre, open, lift
 spread     rolling pin  press straight down to the target thickness, then roll to and fro
                         without slipping about the target's centre (roll a0 with slide a3)
-lift, move box          from under the dough, lift (eased) above the board, carry to the
-                        target, lower onto the support there
-gather     gripper      close on the scattered dough to the target's width (gap action +),
-                        open, turn 90 degrees if the other axis is still too wide, close
-                        again, open a little to let go
+lift, move box          from under the dough: one smooth path over the whole budget that
+                        rises above every support, carries to the target and comes down onto
+                        the support there
+gather     gripper      close at half speed on the scattered dough to 0.8 of the target's
+                        width (gap action +) and hold; no opening, no turn
 ========== ============ ==================================================================
 
 What was measured at the coarse profiles (grid 32 and 48), and shaped these scripts:
 
 * Fast tool motions throw the dough (it slides on after the tool stops; ground friction 0.5), so
   pushes brake over the steps friction needs, the knife cuts at half speed and the spatula eases.
-* Grid nodes inside a tool leave it at ``sim.tool_expel_rate`` of their depth per substep. With
-  the default 0.1 a spatula lifting dough launches it and then carries it on a cushion without
-  friction, so ``lift`` / ``move`` only work with that rate at 0 (and at grid 48; at grid 32 the
-  0.04-thick spatula also drops the dough when the board is high); a gripper holding dough
-  squeezed squirts it through its fingers, so ``gather`` opens a little at the end.
+* Grid nodes inside a tool leave it at its expel rate (``tools[].expel_rate``, else
+  ``sim.tool_expel_rate``) of their depth per substep. With 0.1 a spatula lifting dough launches it
+  and then carries it on a cushion without friction, so the spatulas, grippers, boards and
+  LiftSpread's pin have 0 (and at grid 32 the 0.04-thick spatula also drops the dough when the
+  board is high). Opening a gripper after a gather lets the squeezed dough spring back.
 * At grid 32 the 0.05-thick knife cannot cut (a piece is launched or stays joined); at grid 48
   the cut leaves two DBSCAN pieces in the 1000 observation points, provided the knife's mid-plane
-  lies between two grid columns (the cut x is moved to the middle of its grid cell).
+  lies between two grid columns (the cut x is moved to the middle of its grid cell), and with the
+  knife's rate at 0.4 (``small``) no floor smear joins them.
 * A rolling pin moving its full span pushes the dough out of the target (RollingPinExt's roll
   alone moves the pin's bottom at twice the pin's speed); pressing does most of the spreading.
 
