@@ -22,10 +22,9 @@ from pathlib import Path
 
 import numpy as np
 from prefect import flow, task
-from rich.progress import Progress
 
 from flows.runners import in_main_thread, task_runner
-from pasta import tracking
+from pasta import progress, tracking
 from pasta.config import load
 from pasta.config.schema import TaskConfig
 from pasta.data.configurations import generate_skill_problems, skill_problem, split_problems
@@ -150,12 +149,12 @@ def generate_data(task_name: str, profile: str = "smoke", method: str = "gbto", 
     out_dir = dataset_dir(cfg.task, profile, method)
     index_path = out_dir / "index.csv"
     index = DatasetIndex.load(index_path, missing_ok=True)
-    started = time.perf_counter()
+    started, started_at = time.perf_counter(), time.time()  # the run covers the demos it records
     futures = [make_demo.submit(cfg.task, profile, tuple(overrides), p.config_id, method, str(out_dir), seed)
                for p in problems]
     records = []
-    with Progress(transient=False) as progress:
-        bar = progress.add_task(f"{cfg.task} demos ({method})", total=len(futures))
+    with progress.stage_progress() as bars:
+        bar = bars.add_task(f"{cfg.task} demos ({method})", total=len(futures), status="")
         for future in futures:
             record = future.result()
             records.append(record)
@@ -165,7 +164,7 @@ def generate_data(task_name: str, profile: str = "smoke", method: str = "gbto", 
                       split=split_of[record["configuration_id"]], final_shape_distance=record["emd_final"],
                       normalised_performance=record["normalised_performance"])
             index.save(index_path)
-            progress.advance(bar)
+            bars.update(bar, advance=1, status=f"normalised performance {record['normalised_performance']:.3f}")
     wall_s = time.perf_counter() - started
     made = sum(not r["reused"] for r in records)
     perf = np.array([r["normalised_performance"] for r in records])
@@ -179,7 +178,8 @@ def generate_data(task_name: str, profile: str = "smoke", method: str = "gbto", 
                            for r in improved])) if improved else float("nan")),
         "train": len(train), "test": len(test),
     }
-    with tracking.run(cfg.task, "data", profile=profile, variant=method, seed=seed, cfg=cfg) as active:
+    with tracking.run(cfg.task, "data", profile=profile, variant=method, seed=seed, cfg=cfg,
+                      started_at=started_at) as active:
         tracking.log_metrics(summary)
         tracking.log_table(rows, "tables/demos.json")
         tracking.log_artifact(index_path, "dataset")
@@ -189,6 +189,8 @@ def generate_data(task_name: str, profile: str = "smoke", method: str = "gbto", 
         summary["mlflow_run_id"] = active.info.run_id
     summary["index"] = str(index_path)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    progress.summary(f"data {cfg.task} {method}", f"{len(records)} demos ({made} made, {len(records) - made} reused), "
+                     f"mean normalised performance {summary['performance_mean']:.3f}", wall_s)
     return summary
 
 

@@ -30,7 +30,7 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
 from flows.runners import check_workers, in_main_thread, run_in_child_process, task_runner, write_child_result
-from pasta import tracking
+from pasta import progress, tracking
 from pasta.config import load
 from pasta.config.schema import TaskConfig
 from pasta.data.configurations import EvaluationProblem, evaluation_problem, evaluation_problems
@@ -80,19 +80,22 @@ def evaluate_seeds(cfg: TaskConfig, profile: str, variant: str, overrides: Seque
     One worker without a Dask address runs them one by one in the flow's own thread; otherwise they fan out
     to a process pool of ``workers`` or to the Dask cluster.
     """
+    pairs = progress.ScoreBar(f"{cfg.task} evaluation ({variant}, {plan_source} plan, {executor})",
+                              len(seeds) * cfg.data.n_eval_configs)
     if workers == 1 and not dask_address:
         problems = evaluation_problems(cfg)
         bundle = trained_models(cfg.task, profile, variant) if needs_models(plan_source, executor) else None
         settings = PlanSettings.from_config(cfg)
-        return [[evaluate_configuration(cfg, bundle, problem, seed, executor, settings, plan_source)
-                 for problem in problems] for seed in seeds]
-    with task_runner(workers, dask_address) as runner:
+        with pairs:
+            return [[pairs.done(evaluate_configuration(cfg, bundle, problem, seed, executor, settings, plan_source))
+                     for problem in problems] for seed in seeds]
+    with task_runner(workers, dask_address) as runner, pairs:
         futures = [[runner.submit(evaluate_configuration_apart, {
             "task_name": cfg.task, "profile": profile, "variant": variant, "overrides": tuple(overrides),
             "config_id": index, "seed": seed, "executor": executor, "plan_source": plan_source})
             for index in range(cfg.data.n_eval_configs)]
             for seed in seeds]
-        return [[future.result() for future in row] for row in futures]
+        return [[pairs.done(future.result()) for future in row] for row in futures]
 
 
 def default_experiment(plan_source: str) -> str:
@@ -101,14 +104,18 @@ def default_experiment(plan_source: str) -> str:
 
 
 def log_seed(cfg: TaskConfig, results: Sequence[EvaluationResult], *, profile: str, variant: str, seed: int,
-             executor: str, parent_run_id: str | None, tags: dict[str, str], plan_source: str = "learned"
-             ) -> tuple[str, dict[str, float]]:
-    """One MLflow run for one seed: metrics, the table and the strips; returns its id and the metrics."""
+             executor: str, parent_run_id: str | None, tags: dict[str, str], plan_source: str = "learned",
+             started_at: float | None = None) -> tuple[str, dict[str, float]]:
+    """One MLflow run for one seed: metrics, the table and the strips; returns its id and the metrics.
+
+    ``started_at`` (``time.time()``) is when the seed's evaluation began: the run starts then.
+    """
     rows = [r.row() for r in results]
     metrics = summary_metrics(rows)
     with tracking.run(cfg.task, "evaluate", profile=profile, variant=variant, seed=seed, cfg=cfg,
                       parent_run_id=parent_run_id,
-                      extra_tags={**tags, "pasta.executor": executor, "pasta.plan": plan_source}) as active:
+                      extra_tags={**tags, "pasta.executor": executor, "pasta.plan": plan_source},
+                      started_at=started_at) as active:
         tracking.log_metrics(metrics)
         tracking.log_table(rows, "tables/evaluation.json")
         with tempfile.TemporaryDirectory() as folder:
@@ -145,23 +152,33 @@ def evaluate(task_name: str, profile: str = "smoke", variant: str = "pasta", see
     tags = {"pasta.experiment": experiment}
     if sweep_value is not None:
         tags["pasta.sweep_value"] = str(sweep_value)
-    started = time.perf_counter()
+    started, started_at = time.perf_counter(), time.time()  # every seed's run covers the whole evaluation
     per_seed = []
     all_results = evaluate_seeds(cfg, profile, variant, overrides, seeds, executor, workers, dask_address,
                                  plan_source)
     for seed, results in zip(seeds, all_results, strict=True):
         run_id, metrics = log_seed(cfg, results, profile=profile, variant=variant, seed=seed, executor=executor,
-                                   parent_run_id=parent_run_id, tags=tags, plan_source=plan_source)
+                                   parent_run_id=parent_run_id, tags=tags, plan_source=plan_source,
+                                   started_at=started_at)
         per_seed.append({"seed": seed, "mlflow_run_id": run_id, **metrics})
     performance = np.array([s["performance"] for s in per_seed])
     success = np.array([s["success_rate"] for s in per_seed])
-    return {
+    summary = {
         "task": cfg.task, "profile": profile, "variant": variant, "plan": plan_source, "executor": executor,
         "experiment": experiment, "seeds": seeds,
         "performance_mean": float(performance.mean()), "performance_std": float(performance.std()),
         "success_mean": float(success.mean()), "success_std": float(success.std()),
         "per_seed": per_seed, "wall_s": time.perf_counter() - started,
     }
+    progress.summary(f"evaluate {cfg.task} {variant}", evaluation_text(summary), summary["wall_s"])
+    return summary
+
+
+def evaluation_text(summary: dict) -> str:
+    """An evaluation's scores over seeds in one line."""
+    return (f"{len(summary['seeds'])} seeds, performance {summary['performance_mean']:.3f} "
+            f"± {summary['performance_std']:.3f}, success {summary['success_mean']:.2f} "
+            f"± {summary['success_std']:.2f} ({summary['plan']} plan, {summary['executor']} executor)")
 
 
 def run(task_name: str, profile: str = "smoke", variant: str = "pasta", seeds: Sequence[int] | None = None,

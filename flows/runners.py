@@ -4,26 +4,33 @@ Taichi keeps one runtime per process and must own the process's main thread, so 
 runs in Prefect's thread pool. A process pool's workers run each task in their main thread. A Dask
 worker runs tasks in a thread, so there a task hands its work to a child ``python -m <module>`` process
 (:func:`run_in_child_process`) and reads the result back from a file.
+
+A command runs against one Prefect server (:func:`one_prefect_server`): the pool workers report their task
+runs to it instead of each starting a temporary server of its own.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
 import tempfile
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import cloudpickle
+from prefect.settings import PREFECT_API_URL, temporary_settings
 from prefect.task_runners import ProcessPoolTaskRunner, TaskRunner
 
 from pasta.sim.runtime import THREADS_ENV
 
 __all__ = [
-    "check_workers", "in_main_thread", "run_in_child_process", "share_cores", "task_runner", "write_child_result",
+    "check_workers", "in_main_thread", "one_prefect_server", "run_in_child_process", "share_cores", "task_runner",
+    "write_child_result",
 ]
 
 
@@ -33,6 +40,27 @@ def share_cores(threads: int) -> None:
     import torch
 
     torch.set_num_threads(threads)
+
+
+@contextlib.contextmanager
+def one_prefect_server(enabled: bool = True) -> Iterator[str | None]:
+    """Run the enclosed flows against one Prefect server, whose API URL the pool workers inherit.
+
+    With ``PREFECT_API_URL`` set (a running server, or the tests' harness) nothing changes. Otherwise the
+    temporary server Prefect would start on first use is started now and its URL set for this process; a
+    process pool passes the settings on, so its workers report to it (their task runs appear under the
+    flow run) instead of each starting a server. ``enabled=False`` (a Dask cluster, whose workers may not
+    reach this machine's server) leaves Prefect's own choice. Yields the API URL in use (``None``: none yet).
+    """
+    if not enabled or PREFECT_API_URL.value():
+        yield PREFECT_API_URL.value()
+        return
+    from prefect.server.api.server import SubprocessASGIServer
+
+    server = SubprocessASGIServer()  # Prefect's own default server: stopped when the process exits
+    server.start()
+    with temporary_settings(updates={PREFECT_API_URL: server.api_url}):
+        yield server.api_url
 
 
 def check_workers(workers: int) -> None:

@@ -25,7 +25,7 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
-from pasta import tracking
+from pasta import progress, tracking
 from pasta.config import load
 from pasta.config.schema import TaskConfig
 from pasta.models import ModelConfig, variant_spec
@@ -35,6 +35,7 @@ from pasta.train.datasets import vae_clouds
 from pasta.train.device import training_device
 from pasta.train.figures import latent_grid_figure, reconstruction_figure
 from pasta.train.locate import BUNDLE_FILE, model_task
+from pasta.train.progress import EpochBars, epoch_status
 from pasta.train.stages import heads_stage, load_training_data, vae_file_name, vae_stage
 
 FINAL_METRICS = ("feasibility_auc_random", "feasibility_auc_hard", "cost_r2", "policy_mse", "policy_zero_mse")
@@ -72,10 +73,10 @@ def train_vae_task(cfg: TaskConfig, data, folder: Path, model_config: ModelConfi
 
 
 @task(name="train-heads", cache_policy=NO_CACHE)
-def train_heads_task(cfg: TaskConfig, variant: str, data, vae, progress: Path, model_config: ModelConfig,
+def train_heads_task(cfg: TaskConfig, variant: str, data, vae, progress_path: Path, model_config: ModelConfig,
                      seed: int, device, log_epoch):
-    """The variant's policy, feasibility and cost heads (resuming from ``progress``)."""
-    return heads_stage(cfg, variant, data, vae, progress, model_config=model_config, seed=seed,
+    """The variant's policy, feasibility and cost heads (resuming from ``progress_path``)."""
+    return heads_stage(cfg, variant, data, vae, progress_path, model_config=model_config, seed=seed,
                        on_epoch=log_epoch, device=device)
 
 
@@ -111,19 +112,23 @@ def train(task_name: str, profile: str = "smoke", variant: str = "pasta", method
     whole_scene = variant_spec(variant).whole_scene_latent
     folder = dataset_folder(cfg.task, profile, method)
     chosen_device = training_device(device)
-    started = time.perf_counter()
+    started, started_at = time.perf_counter(), time.time()  # the run covers reading the data too
     data = load_training_data(cfg, folder, whole_scene=whole_scene, seed=seed,
                               entity_points=sizes.vae.n_decoded_points)
     key = vae_key(cfg, folder, whole_scene, sizes, seed)
     vae_folder = checkpoint_dir(cfg.task, profile, f"{vae_file_name(whole_scene)}-{key}")
     variant_folder = checkpoint_dir(cfg.task, profile, variant)
-    progress = variant_folder / f"training-{_digest(key, tracking.config_hash(cfg), sizes, seed)}.pt"
+    progress_file = variant_folder / f"training-{_digest(key, tracking.config_hash(cfg), sizes, seed)}.pt"
     logger = EpochLogger()
-    with tracking.run(cfg.task, "train", profile=profile, variant=variant, seed=seed, cfg=cfg) as active:
+    bars = epoch_bars(cfg, variant, logger)
+    with tracking.run(cfg.task, "train", profile=profile, variant=variant, seed=seed, cfg=cfg,
+                      started_at=started_at) as active, bars:
         tracking.log_metrics({"trajectories": len(data.demos), "entities": len(data.table)})
-        vae = train_vae_task(cfg, data, vae_folder, sizes, seed, chosen_device, logger)
+        vae = train_vae_task(cfg, data, vae_folder, sizes, seed, chosen_device, bars)
+        bars.finish("vae", f"held-out Chamfer {vae.heldout_chamfer:.4g} (best epoch {vae.best_epoch + 1})")
         logger.backfill("vae", vae.history)
-        heads = train_heads_task(cfg, variant, data, vae.vae, progress, sizes, seed, chosen_device, logger)
+        heads = train_heads_task(cfg, variant, data, vae.vae, progress_file, sizes, seed, chosen_device, bars)
+        bars.finish("heads", epoch_status("heads", heads.metrics))
         logger.backfill("heads", heads.history)
         bundle_path = variant_folder / BUNDLE_FILE
         save_trained(bundle_path, heads.bundle, epoch=len(heads.history), extra={"vae_key": key})
@@ -141,7 +146,22 @@ def train(task_name: str, profile: str = "smoke", variant: str = "pasta", method
         tracking.log_artifact(bundle_path, "checkpoints")
         summary.update(mlflow_run_id=active.info.run_id, bundle=str(bundle_path), dataset=str(folder),
                        vae=str(vae_folder / "vae.pt"), device=str(chosen_device))
+    progress.summary(f"train {cfg.task} {variant}", train_line(summary), summary["wall_s"])
     return summary
+
+
+def epoch_bars(cfg: TaskConfig, variant: str, then: EpochLogger) -> EpochBars:
+    """Progress bars over the VAE's and the heads' epochs that pass each epoch on to ``then``."""
+    return EpochBars({"vae": f"{cfg.task} VAE", "heads": f"{cfg.task} heads ({variant})"},
+                     {"vae": cfg.train.vae_epochs, "heads": cfg.train.epochs}, then=then)
+
+
+def train_line(summary: Mapping[str, float]) -> str:
+    """The final metrics of a training run in one line."""
+    shown = (("vae_heldout_chamfer", "VAE held-out Chamfer"), ("policy_mse", "policy MSE"),
+             ("policy_zero_mse", "zero-action MSE"), ("feasibility_auc_random", "AUC random"),
+             ("feasibility_auc_hard", "AUC hard"), ("cost_r2", "cost R2"))
+    return ", ".join(f"{label} {summary[key]:.4g}" for key, label in shown if key in summary)
 
 
 def run(task_name: str, profile: str = "smoke", variant: str = "pasta", method: str | None = None,

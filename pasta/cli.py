@@ -7,19 +7,57 @@
     pasta evaluate --task CutRearrange [--profile smoke] [--variant pasta] [--plan oracle] [--executor scripted]
                    [--seeds 0 1 2]
 
-Each subcommand imports what it needs (the simulator, torch, ...) only when it runs.
+Each subcommand imports what it needs (the simulator, torch, ...) only when it runs. Every argument,
+``--set`` overrides included, is checked before that: a bad value ends in one
+``pasta <command>: error: ...`` line and exit code 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import os
+import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
-from pasta.config.schema import PROFILE_NAMES, TASK_NAMES  # light: pydantic only
+from pasta.config import ConfigError, load, to_yaml  # light: pydantic and yaml only
+from pasta.config.schema import DEMO_METHODS, PROFILE_NAMES, TASK_NAMES, VARIANT_NAMES
+
+SWEEP_TASKS = ("CutRearrange", "CRS")  # the tasks of flows/sweeps.py's sweep points
+DEVICE_PATTERN = re.compile(r"(cpu|cuda|mps|xpu)(:\d+)?")
+
+
+def positive_int(text: str) -> int:
+    """An argparse type: an integer of at least 1 (a worker count)."""
+    value = _integer(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer of at least 1, got {text!r}")
+    return value
+
+
+def seed_int(text: str) -> int:
+    """An argparse type: a seed, an integer of at least 0."""
+    value = _integer(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"a seed must be an integer of at least 0, got {text!r}")
+    return value
+
+
+def torch_device(text: str) -> str:
+    """An argparse type: a torch device name (checked by its form, without importing torch)."""
+    if not DEVICE_PATTERN.fullmatch(text):
+        raise argparse.ArgumentTypeError(f"invalid device {text!r} (choose from cpu, cuda, cuda:N, mps, xpu)")
+    return text
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
 
 
 def _add_task_profile(parser: argparse.ArgumentParser) -> None:
@@ -30,14 +68,7 @@ def _add_task_profile(parser: argparse.ArgumentParser) -> None:
 
 
 def _cmd_config(args: argparse.Namespace) -> int:
-    from pasta.config import ConfigError, load, to_yaml
-
-    try:
-        cfg = load(args.task, args.profile, args.set)
-    except ConfigError as err:
-        print(f"pasta config: error: {err}", file=sys.stderr)
-        return 2
-    sys.stdout.write(to_yaml(cfg))
+    sys.stdout.write(to_yaml(load(args.task, args.profile, args.set)))
     return 0
 
 
@@ -47,43 +78,50 @@ def _cmd_sim_demo(args: argparse.Namespace) -> int:
     return result if isinstance(result, int) else 0
 
 
-def _prefect_defaults() -> None:
+@contextlib.contextmanager
+def _prefect(args: argparse.Namespace) -> Iterator[None]:
+    """Prefect's defaults, then one Prefect server for the whole command and its pool workers
+    (``flows.runners.one_prefect_server``; a Dask cluster's workers are left to Prefect)."""
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "90")
+    runners = importlib.import_module("flows.runners")
+    with runners.one_prefect_server(enabled=getattr(args, "dask_address", None) is None):
+        yield
 
 
 def _cmd_data(args: argparse.Namespace) -> int:
-    _prefect_defaults()
-    data_flow = importlib.import_module("flows.data")
-    summary = data_flow.run(args.task, profile=args.profile, method=args.method, workers=args.workers,
-                            overrides=args.set, dask_address=args.dask_address, seed=args.seed)
+    with _prefect(args):
+        data_flow = importlib.import_module("flows.data")
+        summary = data_flow.run(args.task, profile=args.profile, method=args.method, workers=args.workers,
+                                overrides=args.set, dask_address=args.dask_address, seed=args.seed)
     print(json.dumps(summary, indent=1))
     return 0
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    _prefect_defaults()
-    train_flow = importlib.import_module("flows.train")
-    summary = train_flow.run(args.task, profile=args.profile, variant=args.variant, method=args.method,
-                             overrides=args.set, seed=args.seed, device=args.device)
+    with _prefect(args):
+        train_flow = importlib.import_module("flows.train")
+        summary = train_flow.run(args.task, profile=args.profile, variant=args.variant, method=args.method,
+                                 overrides=args.set, seed=args.seed, device=args.device)
     print(json.dumps(summary, indent=1))
     return 0
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    _prefect_defaults()
-    report_flow = importlib.import_module("flows.report")
-    for path in report_flow.run(args.task):
+    with _prefect(args):
+        report_flow = importlib.import_module("flows.report")
+        paths = report_flow.run(args.task)
+    for path in paths:
         print(path)
     return 0
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    _prefect_defaults()
-    evaluate_flow = importlib.import_module("flows.evaluate")
-    summary = evaluate_flow.run(args.task, profile=args.profile, variant=args.variant, seeds=args.seeds,
-                                executor=args.executor, overrides=args.set, experiment=args.experiment,
-                                workers=args.workers, dask_address=args.dask_address, plan_source=args.plan)
+    with _prefect(args):
+        evaluate_flow = importlib.import_module("flows.evaluate")
+        summary = evaluate_flow.run(args.task, profile=args.profile, variant=args.variant, seeds=args.seeds,
+                                    executor=args.executor, overrides=args.set, experiment=args.experiment,
+                                    workers=args.workers, dask_address=args.dask_address, plan_source=args.plan)
     print(json.dumps(summary, indent=1))
     print(json.dumps(evaluation_line(summary)))  # the last line, for scripts
     return 0
@@ -97,45 +135,42 @@ def evaluation_line(summary: dict) -> dict:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    if bool(args.all) == bool(args.task):
-        print("pasta run: error: give either --task TASK or --all", file=sys.stderr)
-        return 2
-    _prefect_defaults()
-    pipeline = importlib.import_module("flows.pipeline")
-    tasks = pipeline.ALL_TASKS if args.all else (args.task,)
-    pipeline.run(tasks, profile=args.profile, variant=args.variant, method=args.method, workers=args.workers,
-                 executor=args.executor, overrides=args.set, dask_address=args.dask_address)
+    with _prefect(args):
+        pipeline = importlib.import_module("flows.pipeline")
+        tasks = pipeline.ALL_TASKS if args.all else (args.task,)
+        pipeline.run(tasks, profile=args.profile, variant=args.variant, method=args.method, workers=args.workers,
+                     executor=args.executor, overrides=args.set, dask_address=args.dask_address)
     return 0
 
 
 def _cmd_ablations(args: argparse.Namespace) -> int:
-    _prefect_defaults()
-    ablations = importlib.import_module("flows.ablations")
-    results = ablations.run(args.task, profile=args.profile, variants=args.variants, method=args.method,
-                            workers=args.workers, executor=args.executor, overrides=args.set,
-                            dask_address=args.dask_address)
+    with _prefect(args):
+        ablations = importlib.import_module("flows.ablations")
+        results = ablations.run(args.task, profile=args.profile, variants=args.variants, method=args.method,
+                                workers=args.workers, executor=args.executor, overrides=args.set,
+                                dask_address=args.dask_address)
     print(json.dumps(results, indent=1, default=str))
     return 0
 
 
 def _cmd_sweeps(args: argparse.Namespace) -> int:
-    _prefect_defaults()
-    sweeps = importlib.import_module("flows.sweeps")
-    results = sweeps.run(profile=args.profile, only=args.only, executor=args.executor, overrides=args.set,
-                         workers=args.workers, dask_address=args.dask_address)
+    with _prefect(args):
+        sweeps = importlib.import_module("flows.sweeps")
+        results = sweeps.run(profile=args.profile, only=args.only, executor=args.executor, overrides=args.set,
+                             workers=args.workers, dask_address=args.dask_address)
     print(json.dumps(results, indent=1, default=str))
     return 0
 
 
 def _add_worker_options(parser: argparse.ArgumentParser, workers: int = 2) -> None:
-    parser.add_argument("--workers", type=int, default=workers,
+    parser.add_argument("--workers", type=positive_int, default=workers,
                         help=f"worker processes for the simulations: demos and evaluations (default {workers})")
     parser.add_argument("--dask-address", default=None, metavar="ADDRESS",
                         help="run the simulations on this Dask scheduler (tcp://host:8786) instead")
 
 
 def _add_run_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--method", default="gbto", choices=("gbto", "scripted"),
+    parser.add_argument("--method", default="gbto", choices=DEMO_METHODS,
                         help="how demonstrations are made (default gbto)")
     _add_worker_options(parser)
     parser.add_argument("--executor", default="policy", choices=("policy", "scripted"),
@@ -167,18 +202,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     data = sub.add_parser("data", help="generate a task's demonstration dataset (Prefect flow, MLflow run)")
     _add_task_profile(data)
-    data.add_argument("--method", default="gbto", help="gbto (scripted warm start + optimisation) or scripted")
+    data.add_argument("--method", default="gbto", choices=DEMO_METHODS,
+                      help="gbto (scripted warm start + optimisation) or scripted")
     _add_worker_options(data)
-    data.add_argument("--seed", type=int, default=0)
+    data.add_argument("--seed", type=seed_int, default=0)
     data.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     data.set_defaults(func=_cmd_data)
 
     train = sub.add_parser("train", help="train a task's VAE and one variant's heads (Prefect flow, MLflow run)")
     _add_task_profile(train)
-    train.add_argument("--variant", default="pasta", help="pasta, an ablation, or flat3d (default pasta)")
-    train.add_argument("--method", default=None, help="dataset to read: gbto or scripted (default: gbto if present)")
-    train.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
-    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--variant", default="pasta", choices=VARIANT_NAMES,
+                       help="pasta, an ablation, or flat3d (default pasta)")
+    train.add_argument("--method", default=None, choices=DEMO_METHODS,
+                       help="dataset to read: gbto or scripted (default: gbto if present)")
+    train.add_argument("--device", default=None, type=torch_device,
+                       help="torch device (default: cuda when available, else cpu)")
+    train.add_argument("--seed", type=seed_int, default=0)
     train.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     train.set_defaults(func=_cmd_train)
 
@@ -188,13 +227,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     evaluate = sub.add_parser("evaluate", help="plan and execute the 5 test configurations (Prefect flow, MLflow runs)")
     _add_task_profile(evaluate)
-    evaluate.add_argument("--variant", default="pasta", help="trained variant to evaluate (default pasta)")
+    evaluate.add_argument("--variant", default="pasta", choices=VARIANT_NAMES,
+                          help="trained variant to evaluate (default pasta)")
     evaluate.add_argument("--plan", default="learned", choices=("learned", "oracle"),
                           help="plan with the trained networks, or take the generator's own subgoals (oracle; "
                                "with --executor scripted it needs no trained models)")
     evaluate.add_argument("--executor", default="policy", choices=("policy", "scripted"),
                           help="run the skills with the learned policies or the scripted skills")
-    evaluate.add_argument("--seeds", type=int, nargs="+", default=None, help="seeds (default: cfg.eval.seeds)")
+    evaluate.add_argument("--seeds", type=seed_int, nargs="+", default=None, help="seeds (default: cfg.eval.seeds)")
     evaluate.add_argument("--experiment", default=None,
                           help="pasta.experiment tag (default main, or oracle_plan with --plan oracle)")
     _add_worker_options(evaluate, workers=1)
@@ -202,17 +242,20 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.set_defaults(func=_cmd_evaluate)
 
     run = sub.add_parser("run", help="a task's whole pipeline: data, training, evaluation, report (resumable)")
-    run.add_argument("--task", default=None, choices=TASK_NAMES, help="task name")
-    run.add_argument("--all", action="store_true", help="every task, one after another")
+    which = run.add_mutually_exclusive_group(required=True)
+    which.add_argument("--task", default=None, choices=TASK_NAMES, help="task name")
+    which.add_argument("--all", action="store_true", help="every task, one after another")
     run.add_argument("--profile", default="smoke", choices=PROFILE_NAMES, help="scale profile (default: smoke)")
-    run.add_argument("--variant", default="pasta", help="pasta, an ablation, or flat3d (default pasta)")
+    run.add_argument("--variant", default="pasta", choices=VARIANT_NAMES,
+                     help="pasta, an ablation, or flat3d (default pasta)")
     _add_run_options(run)
     run.set_defaults(func=_cmd_run)
 
     ablations = sub.add_parser("ablations", help="Table 5: train and evaluate every variant under one parent run")
     ablations.add_argument("--task", default="CutRearrange", choices=TASK_NAMES, help="task (default CutRearrange)")
     ablations.add_argument("--profile", default="smoke", choices=PROFILE_NAMES, help="scale profile")
-    ablations.add_argument("--variants", nargs="+", default=None, help="variants (default: all six)")
+    ablations.add_argument("--variants", nargs="+", default=None, choices=VARIANT_NAMES,
+                           help="variants (default: all six)")
     _add_run_options(ablations)
     ablations.set_defaults(func=_cmd_ablations)
 
@@ -225,11 +268,40 @@ def build_parser() -> argparse.ArgumentParser:
     _add_worker_options(sweeps)
     sweeps.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     sweeps.set_defaults(func=_cmd_sweeps)
+    for command in sub.choices.values():
+        command.set_defaults(parser=command)  # its errors read "pasta <command>: error: ..."
     return parser
+
+
+def override_tasks(args: argparse.Namespace) -> tuple[str, ...]:
+    """The tasks whose configurations a command's ``--set`` overrides must fit."""
+    if args.command == "sweeps":
+        return SWEEP_TASKS
+    if getattr(args, "all", False):
+        return TASK_NAMES
+    return (args.task,)
+
+
+def check_overrides(args: argparse.Namespace) -> None:
+    """Refuse a bad ``--set`` with ``pasta <command>: error: ...`` (exit 2) before anything starts."""
+    if not hasattr(args, "set"):
+        return
+    for task in override_tasks(args):
+        try:
+            load(task, args.profile, args.set)
+        except ConfigError as err:
+            args.parser.error(one_line(str(err)))
+
+
+def one_line(message: str) -> str:
+    """A configuration error's bulleted lines joined into one: ``head: first; second``."""
+    head, *items = message.splitlines()
+    return " ".join([head, "; ".join(item.strip().removeprefix("- ") for item in items)]).strip()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    check_overrides(args)
     return args.func(args)
 
 

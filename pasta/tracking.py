@@ -4,6 +4,7 @@ Experiments are named ``pasta/<task>``; every run carries the tags a user filter
 on in the MLflow UI (``pasta.task``, ``pasta.stage``, ``pasta.profile``,
 ``pasta.variant``, ``pasta.seed``, ``pasta.git_commit``) and, when it is given a
 config, the whole resolved config as dotted params plus ``config.json``.
+Each experiment carries a description (:func:`experiment_description`) saying how to read its runs.
 The library itself never imports MLflow; flows do, through this module.
 """
 
@@ -13,6 +14,7 @@ import json
 import os
 import shutil
 import subprocess
+import time
 from collections.abc import Iterator, Mapping
 from functools import lru_cache
 from pathlib import Path
@@ -20,11 +22,13 @@ from typing import Any
 
 import mlflow
 import pandas as pd
+from mlflow.tracking.context import registry as context_registry
 
 from pasta.config.schema import TaskConfig
 from pasta.paths import REPO_ROOT, tracking_uri
 
 MAX_PARAM_LENGTH = 500
+DESCRIPTION_TAG = "mlflow.note.content"  # the experiment description the MLflow UI shows
 
 
 def configure() -> str:
@@ -53,19 +57,59 @@ def artifact_root() -> str | None:
     return None
 
 
+def experiment_description(task: str) -> str:
+    """What ``pasta/<task>`` holds and the tags that tell its runs apart (Markdown, shown by the MLflow UI)."""
+    return (
+        f"PASTA runs of the task **{task}**. Read a run by its tags:\n\n"
+        "* `pasta.stage`: `data` (demonstrations), `train` (the VAE and one variant's heads), `evaluate` "
+        "(one seed on the test configurations), `ablations` (a parent run grouping the Table 5 runs);\n"
+        "* `pasta.profile`: `smoke`, `small` or `paper`; `pasta.seed`: the seed;\n"
+        "* `pasta.variant`: `pasta`, an ablation or `flat3d` (for data runs: the demo method, `gbto` or "
+        "`scripted`);\n"
+        "* `pasta.experiment`: what an evaluation belongs to: `main`, `oracle_plan`, `ablation` or "
+        "`sweep_<name>` (its point in `pasta.sweep_value`);\n"
+        "* `pasta.plan`: `learned` (planned with the trained networks) or `oracle` (the generator's subgoals); "
+        "`pasta.executor`: `policy` (learned policies) or `scripted` skills;\n"
+        "* `pasta.config_hash`: runs with equal hashes used the same resolved config (`config.json`).\n\n"
+        f"`pasta report --task {task}` rebuilds the report from these runs."
+    )
+
+
 def use_experiment(task: str) -> str:
-    """Make ``pasta/<task>`` the active experiment, creating it with ``artifact_root()``; returns its id."""
+    """Make ``pasta/<task>`` the active experiment, creating it with ``artifact_root()`` and its description;
+    returns its id."""
     name = experiment_name(task)
-    existing = mlflow.get_experiment_by_name(name)
+    client = mlflow.MlflowClient()
+    existing = client.get_experiment_by_name(name)
     if existing is None:
         root = artifact_root()
         location = f"{root}/{name.replace('/', '_')}" if root else None
         try:
-            mlflow.create_experiment(name, artifact_location=location)
+            client.create_experiment(name, artifact_location=location,
+                                     tags={DESCRIPTION_TAG: experiment_description(task)})
         except mlflow.exceptions.MlflowException:
-            if mlflow.get_experiment_by_name(name) is None:  # not a lost race with another process
+            if client.get_experiment_by_name(name) is None:  # not a lost race with another process
                 raise
+        hide_empty_default_experiment(client)
+    elif DESCRIPTION_TAG not in existing.tags:  # made before experiments had descriptions
+        client.set_experiment_tag(existing.experiment_id, DESCRIPTION_TAG, experiment_description(task))
     return mlflow.set_experiment(name).experiment_id
+
+
+def hide_empty_default_experiment(client: mlflow.MlflowClient) -> None:
+    """Delete MLflow's ``Default`` experiment of a sqlite store while it holds no runs (PASTA logs none there).
+
+    MLflow creates it with every new store; deleting only marks it deleted, so MLflow does not create it
+    again. Stores of other kinds (perhaps shared) are left alone.
+    """
+    if not tracking_uri().startswith("sqlite:"):
+        return
+    default = client.get_experiment_by_name("Default")
+    if default is None or default.lifecycle_stage != "active":
+        return
+    if not client.search_runs([default.experiment_id], max_results=1):
+        with contextlib.suppress(mlflow.exceptions.MlflowException):  # another process deleted it first
+            client.delete_experiment(default.experiment_id)
 
 
 @lru_cache(maxsize=1)
@@ -107,14 +151,18 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
 @contextlib.contextmanager
 def run(task: str, stage: str, *, profile: str, variant: str | None = None, seed: int | None = None,
         cfg: TaskConfig | None = None, parent_run_id: str | None = None, run_name: str | None = None,
-        extra_tags: Mapping[str, str] | None = None) -> Iterator[mlflow.ActiveRun]:
+        extra_tags: Mapping[str, str] | None = None, started_at: float | None = None) -> Iterator[mlflow.ActiveRun]:
     """Open an MLflow run in ``pasta/<task>`` with the standard tags (and the config, if given).
+
+    ``started_at`` (``time.time()`` seconds, default now) is the run's start time: a flow that logs its work
+    once it is done passes the time the work began, so the run's duration in the MLflow UI is the work's.
+    The run ends when the block does.
 
     A run opened in another thread or process joins its parent by ``parent_run_id``: MLflow's
     active run is thread-local, so nothing relies on an ambient run.
     """
     configure()
-    use_experiment(task)
+    experiment_id = use_experiment(task)
     name = run_name or "-".join(part for part in (stage, variant, None if seed is None else f"s{seed}") if part)
     tags = {
         "pasta.task": task,
@@ -129,7 +177,10 @@ def run(task: str, stage: str, *, profile: str, variant: str | None = None, seed
         tags["pasta.config_hash"] = config_hash(cfg)
     if parent_run_id:
         tags["mlflow.parentRunId"] = parent_run_id
-    with mlflow.start_run(run_name=name, tags=tags, nested=parent_run_id is not None) as active:
+    created = mlflow.MlflowClient().create_run(
+        experiment_id, start_time=round(1000 * (time.time() if started_at is None else started_at)),
+        tags=context_registry.resolve_tags(tags), run_name=name)
+    with mlflow.start_run(run_id=created.info.run_id, nested=parent_run_id is not None) as active:
         if cfg is not None:
             resolved = cfg.model_dump(mode="json")
             mlflow.log_params(flatten(resolved))
@@ -151,12 +202,16 @@ def log_table(rows: list[Mapping[str, Any]], name: str) -> None:
 
 
 def search_runs(task: str, stage: str | None = None, **tags: str) -> pd.DataFrame:
-    """Runs of ``pasta/<task>`` as a DataFrame, filtered by stage and ``pasta.<tag>`` values."""
+    """Runs of ``pasta/<task>`` as a DataFrame, filtered by stage and ``pasta.<tag>`` values (an empty frame
+    while the experiment does not exist, where ``mlflow.search_runs`` by name would warn)."""
     configure()
+    experiment = mlflow.get_experiment_by_name(experiment_name(task))
+    if experiment is None:
+        return pd.DataFrame()
     filters = [f"tags.`pasta.{key}` = '{value}'" for key, value in tags.items()]
     if stage is not None:
         filters.append(f"tags.`pasta.stage` = '{stage}'")
-    return mlflow.search_runs(experiment_names=[experiment_name(task)], filter_string=" and ".join(filters))
+    return mlflow.search_runs(experiment_ids=[experiment.experiment_id], filter_string=" and ".join(filters))
 
 
 def finished_run_id(task: str, stage: str, cfg: TaskConfig, **tags: str) -> str | None:

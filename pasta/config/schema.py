@@ -15,6 +15,16 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 TASK_NAMES = ("LiftSpread", "GatherMove", "CutRearrange", "CRS", "CRS-Twice")
 PROFILE_NAMES = ("smoke", "small", "paper")
+# PASTA, its ablations and Flat3D (their switches: pasta/models/variants.py); here so the CLI checks them light.
+VARIANT_NAMES = (
+    "pasta",
+    "no_smoothing_feasibility",
+    "shared_encoder_policy",
+    "tool_concat_policy",
+    "set_without_filtering",
+    "flat3d",
+)
+DEMO_METHODS = ("gbto", "scripted")  # how demonstrations are made (pasta/data/demos.py)
 TOOL_KINDS = ("box", "knife", "gripper", "rolling_pin")
 PLAN_COSTS = ("learned", "decoded")  # the planner's set cost (PlanConfig.cost)
 

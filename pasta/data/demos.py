@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pasta.config.schema import TaskConfig
+from pasta.config.schema import DEMO_METHODS, TaskConfig
 from pasta.data.configurations import SkillProblem
 from pasta.data.gbto import GBTOSettings, optimise_actions
 from pasta.data.skills import place_tool_for_skill, scripted_actions
@@ -23,7 +23,7 @@ from pasta.geometry.entities import label_entities
 from pasta.sim.envs import make_env
 from pasta.sim.envs.base import DoughEnv
 
-METHODS = ("gbto", "scripted")
+METHODS = DEMO_METHODS
 
 
 @dataclass(frozen=True)

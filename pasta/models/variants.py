@@ -28,6 +28,7 @@ from types import MappingProxyType
 import torch
 from torch import nn
 
+from pasta.config.schema import VARIANT_NAMES
 from pasta.models.cost import CostPredictor
 from pasta.models.feasibility import SetFeasibilityPredictor
 from pasta.models.model_config import ModelConfig
@@ -37,14 +38,7 @@ from pasta.models.vae import PointCloudVAE
 
 __all__ = ["VARIANTS", "VARIANT_SPECS", "VariantSpec", "build_models", "variant_spec"]
 
-VARIANTS = (
-    "pasta",
-    "no_smoothing_feasibility",
-    "shared_encoder_policy",
-    "tool_concat_policy",
-    "set_without_filtering",
-    "flat3d",
-)
+VARIANTS = VARIANT_NAMES  # named in the config schema, so the CLI checks a variant without importing torch
 
 
 @dataclass(frozen=True)

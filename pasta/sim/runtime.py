@@ -23,7 +23,15 @@ CACHE_ENV = "TI_OFFLINE_CACHE_FILE_PATH"
 def kernel_cache_dir() -> Path:
     """Where compiled kernels are cached across processes (``$TI_OFFLINE_CACHE_FILE_PATH``)."""
     default = Path.home() / ".cache" / "pasta" / "ticache"
-    return Path(os.environ.get(CACHE_ENV, default))
+    return Path(os.environ.get(CACHE_ENV) or default)
+
+
+def cache_argument() -> dict[str, str]:
+    """``ti.init``'s ``offline_cache_file_path``, unless ``$TI_OFFLINE_CACHE_FILE_PATH`` names it already.
+
+    Taichi reads that variable itself and warns when an init argument overrides it.
+    """
+    return {} if os.environ.get(CACHE_ENV) else {"offline_cache_file_path": str(kernel_cache_dir())}
 
 
 THREADS_ENV = "PASTA_TAICHI_THREADS"
@@ -76,7 +84,7 @@ def ensure_taichi(arch: str = "cpu") -> str:
             default_fp=ti.f32,
             default_ip=ti.i32,
             offline_cache=True,
-            offline_cache_file_path=str(cache),
+            **cache_argument(),
             cpu_max_num_threads=cpu_threads(),
             log_level=ti.ERROR,
         )

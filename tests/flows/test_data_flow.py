@@ -8,12 +8,15 @@ from pasta.config.loader import ConfigError
 pytestmark = pytest.mark.flow
 
 
-def test_data_flow_makes_demos_once_and_logs_them(prefect_server, isolated_store):
+def test_data_flow_makes_demos_once_and_logs_them(prefect_server, isolated_store, capsys):
     from flows import data
 
     tmp_path, uri = isolated_store
     first = data.run("CutRearrange", "smoke", method="scripted", workers=1)
     assert first["demos"] == first["made"] >= 3
+    shown = capsys.readouterr().out
+    assert "CutRearrange demos (scripted)" in shown and "ETA" in shown
+    assert f"data CutRearrange scripted done in {first['wall_s']:.0f} s: {first['demos']} demos" in shown
     files = sorted((tmp_path / "home" / "data" / "CutRearrange" / "smoke" / "scripted").glob("trajectory_*.npz"))
     assert len(files) == first["demos"]
     mtimes = [f.stat().st_mtime_ns for f in files]
@@ -28,6 +31,9 @@ def test_data_flow_makes_demos_once_and_logs_them(prefect_server, isolated_store
     assert set(runs["tags.pasta.stage"]) == {"data"}
     assert (runs["metrics.demos"] == first["demos"]).all()
     assert runs["metrics.performance_median"].notna().all()
+    made = runs[runs["metrics.made"] > 0].iloc[0]
+    duration = (made["end_time"] - made["start_time"]).total_seconds()
+    assert first["wall_s"] <= duration <= first["wall_s"] + 10  # the run spans the demos it records (and logging)
 
 
 def test_data_flow_resumes_after_a_lost_demo(prefect_server, isolated_store):

@@ -49,6 +49,8 @@ def test_evaluation_flow_plans_executes_and_logs_every_metric(prefect_server, is
     assert summary["success_mean"] == pytest.approx(np.mean(per_config))  # one seed: the mean over configurations
     assert run["metrics.success_rate"] == pytest.approx(summary["success_mean"])
     assert run["metrics.emd_initial"] > 0
+    duration = (run["end_time"] - run["start_time"]).total_seconds()
+    assert duration == pytest.approx(summary["wall_s"], rel=0.1)  # the run spans the evaluation it records
 
     client = mlflow.tracking.MlflowClient(uri)
     run_id = run["run_id"]
@@ -91,10 +93,14 @@ def test_cli_oracle_plan_runs_without_models_and_ends_with_one_json_line(prefect
     for override in OVERRIDES:
         argv += ["--set", override]
     assert main(argv) == 0
-    last = capsys.readouterr().out.strip().splitlines()[-1]
-    line = json.loads(last)
+    out = capsys.readouterr().out
+    line = json.loads(out.strip().splitlines()[-1])
     assert (line["task"], line["profile"], line["plan"], line["executor"], line["seeds"]) == (
         "CutRearrange", "smoke", "oracle", "scripted", [1])
+    assert "CutRearrange evaluation (pasta, oracle plan, scripted)" in out  # the bar over the configurations
+    assert f"mean performance {line['performance_mean']:.3f}" in out  # one seed: the bar's mean is the seed's
+    assert f"performance {line['performance_mean']:.3f} ± 0.000, success" in out.split(
+        "evaluate CutRearrange pasta done in")[1]  # the stage's one-line summary
 
     mlflow.set_tracking_uri(uri)
     runs = mlflow.search_runs(experiment_names=["pasta/CutRearrange"])

@@ -65,7 +65,9 @@ def test_pipeline_resumes_after_an_interruption_and_skips_finished_steps(prefect
 def test_cli_run_needs_a_task_or_all():
     from pasta.cli import main
 
-    assert main(["run"]) == 2
+    with pytest.raises(SystemExit) as exit_info:
+        main(["run"])
+    assert exit_info.value.code == 2
     args = build_parser().parse_args(["run", "--all", "--profile", "small", "--method", "scripted"])
     assert (args.all, args.task, args.profile, args.method, args.executor) == (True, None, "small", "scripted",
                                                                               "policy")

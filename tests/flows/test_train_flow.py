@@ -12,7 +12,7 @@ from tests.train.synthetic_demos import write_dataset
 pytestmark = pytest.mark.flow
 
 
-def test_train_flow_logs_metrics_figures_and_the_bundle(prefect_server, isolated_store):
+def test_train_flow_logs_metrics_figures_and_the_bundle(prefect_server, isolated_store, capsys):
     from flows.train import FINAL_METRICS, train
 
     write_dataset(data_dir("CutRearrange", "smoke") / "scripted", n_trajectories=10)
@@ -26,6 +26,9 @@ def test_train_flow_logs_metrics_figures_and_the_bundle(prefect_server, isolated
         assert summary[key] == summary[key], key  # present and not NaN
     assert summary["policy_mse"] < summary["policy_zero_mse"], summary  # the policies learnt something
     assert summary["feasibility_auc_random"] > 0.5, summary  # better than chance
+    shown = capsys.readouterr().out  # a bar per stage at its last epoch, then the one-line summary
+    assert "CutRearrange VAE" in shown and "CutRearrange heads (pasta)" in shown and "held-out policy MSE" in shown
+    assert f"train CutRearrange pasta done in {summary['wall_s']:.0f} s: VAE held-out Chamfer" in shown
 
     tracking.configure()
     run = mlflow.get_run(summary["mlflow_run_id"])
