@@ -4,6 +4,7 @@
     pasta sim-demo --task CutRearrange [--profile smoke] [--out DIR]
     pasta train --task CutRearrange [--profile smoke] [--variant pasta] [--method gbto|scripted]
     pasta report [--task CutRearrange]
+    pasta status --task CutRearrange [--profile smoke]   # demos, trained variants, evaluations: what a run reuses
     pasta evaluate --task CutRearrange [--profile smoke] [--variant pasta] [--plan oracle] [--executor scripted]
                    [--seeds 0 1 2]
 
@@ -116,6 +117,56 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_status(args: argparse.Namespace) -> int:
+    status = importlib.import_module("pasta.status")  # MLflow only, no Prefect, no torch
+    print(status_text(status.gather(args.task, args.profile)))
+    return 0
+
+
+def _table(headers: Sequence[str], rows: Sequence[Sequence[str]], indent: str = "  ") -> list[str]:
+    widths = [max(len(str(cell)) for cell in column) for column in zip(headers, *rows, strict=True)]
+    return [(indent + "  ".join(str(cell).ljust(width) for cell, width in zip(row, widths, strict=True))).rstrip()
+            for row in (headers, *rows)]
+
+
+def status_text(status: dict) -> str:
+    """``pasta status``'s report of :func:`pasta.status.gather`'s rows."""
+    task, profile, source = status["task"], status["profile"], status["models_from"]
+    lines = [f"pasta status: {task} at profile {profile}"]
+    borrowed = f" (of {source}: {task} uses {source}'s)" if source != task else ""
+    lines += ["", f"Demonstrations{borrowed}"]
+    if status["demos"]:
+        lines += _table(("method", "trajectories", "MLflow data run", "age", "folder"),
+                        [(r["method"], str(r["trajectories"]), r["run_id"] or "none", r["age"],
+                          r["folder"]) for r in status["demos"]])
+    else:
+        lines.append(f"  nothing yet: `pasta data --task {source} --profile {profile}` makes them")
+    lines += ["", f"Trained variants{borrowed}"]
+    if status["trained"]:
+        lines += _table(("variant", "MLflow train run", "age", "config", "bundle"),
+                        [(r["variant"], r["run_id"] or "none", r["age"],
+                          "current" if r["current_config"] else ("other" if r["run_id"] else "-"),
+                          r["bundle"] or "not on disk") for r in status["trained"]])
+    else:
+        lines.append(f"  nothing yet: `pasta train --task {source} --profile {profile}` trains one")
+    lines += ["", "Evaluations (finished MLflow runs)"]
+    if status["evaluations"]:
+        for r in status["evaluations"]:
+            experiment = r["experiment"] + (f" = {r['sweep_value']}" if r["sweep_value"] else "")
+            config = "current config" if r["current_config"] else "another config"
+            lines.append(f"  {experiment}, variant {r['variant']}, plan {r['plan']}, executor {r['executor']} "
+                         f"({config}): seeds {' '.join(map(str, r['seeds']))}")
+            lines += _table(("seed", "MLflow evaluate run", "age"),
+                            [(str(seed), run_id, age)
+                             for seed, run_id, age in zip(r["seeds"], r["run_ids"], r["ages"], strict=True)],
+                            indent="    ")
+    else:
+        lines.append(f"  nothing yet: `pasta evaluate --task {task} --profile {profile}` runs one")
+    lines += ["", f"`pasta run --task {task} --profile {profile}` (variant pasta, gbto demos) would do:"]
+    lines += [f"  {line}" for line in status["reuse"]]
+    return "\n".join(lines)
+
+
 def _cmd_evaluate(args: argparse.Namespace) -> int:
     with _prefect(args):
         evaluate_flow = importlib.import_module("flows.evaluate")
@@ -224,6 +275,11 @@ def build_parser() -> argparse.ArgumentParser:
     report = sub.add_parser("report", help="rebuild the reports (tables, figures) from MLflow alone")
     report.add_argument("--task", default=None, choices=TASK_NAMES, help="one task (default: every task with runs)")
     report.set_defaults(func=_cmd_report)
+
+    status = sub.add_parser("status", help="what exists for a task and profile (demos, trained variants, "
+                                           "evaluations, their MLflow runs): what a `pasta run` would reuse")
+    _add_task_profile(status)
+    status.set_defaults(func=_cmd_status)
 
     evaluate = sub.add_parser("evaluate", help="plan and execute the 5 test configurations (Prefect flow, MLflow runs)")
     _add_task_profile(evaluate)

@@ -13,6 +13,9 @@ import os
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
+BUNDLE_FILE = "models.pt"  # a trained variant's models: ``checkpoint_dir(task, profile, variant) / BUNDLE_FILE``
+# Tasks that plan with another task's models (CRS-Twice uses CRS's skills and models).
+_SHARED_MODELS = {"CRS-Twice": "CRS"}
 
 
 def _mkdir(path: Path) -> Path:
@@ -42,17 +45,25 @@ def tracking_uri() -> str:
     return f"sqlite:///{(REPO_ROOT / 'mlflow.db').as_posix()}"
 
 
-def data_dir(task: str, profile: str) -> Path:
-    """Datasets of one task at one profile: ``$PASTA_HOME/data/<task>/<profile>``."""
-    return _mkdir(pasta_home() / "data" / _component(task, "task") / _component(profile, "profile"))
+def model_task(task: str) -> str:
+    """The task whose models ``task`` uses."""
+    return _SHARED_MODELS.get(task, task)
 
 
-def checkpoint_dir(task: str, profile: str, run_name: str | None = None) -> Path:
-    """Model checkpoints: ``$PASTA_HOME/checkpoints/<task>/<profile>[/<run_name>]``."""
+def data_dir(task: str, profile: str, *, create: bool = True) -> Path:
+    """Datasets of one task at one profile: ``$PASTA_HOME/data/<task>/<profile>`` (created unless ``create`` is
+    false)."""
+    path = pasta_home() / "data" / _component(task, "task") / _component(profile, "profile")
+    return _mkdir(path) if create else path
+
+
+def checkpoint_dir(task: str, profile: str, run_name: str | None = None, *, create: bool = True) -> Path:
+    """Model checkpoints: ``$PASTA_HOME/checkpoints/<task>/<profile>[/<run_name>]`` (created unless ``create`` is
+    false)."""
     path = pasta_home() / "checkpoints" / _component(task, "task") / _component(profile, "profile")
     if run_name is not None:
         path = path / _component(run_name, "run name")
-    return _mkdir(path)
+    return _mkdir(path) if create else path
 
 
 def reports_dir() -> Path:

@@ -4,19 +4,10 @@ from __future__ import annotations
 
 import torch
 
-from pasta.paths import checkpoint_dir
+from pasta.paths import BUNDLE_FILE, checkpoint_dir, model_task
 from pasta.train.bundle import TrainedModels, load_trained
 
 __all__ = ["BUNDLE_FILE", "model_task", "trained_models"]
-
-BUNDLE_FILE = "models.pt"
-# Tasks that plan with another task's models (CRS-Twice uses CRS's skills and models).
-_SHARED_MODELS = {"CRS-Twice": "CRS"}
-
-
-def model_task(task: str) -> str:
-    """The task whose models ``task`` uses."""
-    return _SHARED_MODELS.get(task, task)
 
 
 def trained_models(task: str, profile: str, variant: str,
