@@ -16,6 +16,9 @@ from pasta.sim.envs.base import DoughEnv, ToolPose
 FINGER_SINK = 0.005  # the gripper fingers' bottom sits this far below the dough's bottom
 GRIP_MARGIN = 0.02  # open fingers keep this much room on each side of the piece
 GRIP_SQUEEZE = 0.7  # a closed grip leaves this fraction of the piece's width between the fingers
+# The carry speeds up and slows down over this many steps: starting and stopping at once leaves dough
+# behind and throws the piece on (CutRearrange oracle at small: 0.828 -> 0.876, ease 6: 0.876, 8: 0.867).
+REARRANGE_EASE = 4
 GATHER_SPEED = 0.5  # fraction of full gap speed when squeezing (faster squirts dough through the fingers)
 GATHER_SQUEEZE = 0.8  # a gather closes the fingers to this fraction of the target's width
 GATHER_HOLD = 4  # steps the closed grip is held before the skill ends
@@ -76,14 +79,14 @@ def _gripper_approach(m: Motion, scene: Scene, open_gap: float, grip_y: float, s
 
 def rearrange(env: DoughEnv, m: Motion, scene: Scene) -> None:
     """Straddle the piece (approach if needed), close to ``GRIP_SQUEEZE`` of its width, move the
-    piece's centre to the target's horizontally, open, lift."""
+    piece's centre to the target's horizontally (eased over ``REARRANGE_EASE`` steps), open, lift."""
     goal = scene.destination
     open_gap, grip_gap, grip_y, safe_y = _grip_geometry(m.tool, m.rot, scene)
     _gripper_approach(m, scene, open_gap, grip_y, safe_y)
     m.move(gap=grip_gap)
     if goal is not None:
         shift = goal.mean(axis=0) - scene.centre
-        m.move(pos=(m.pos[0] + shift[0], m.pos[1], m.pos[2] + shift[2]))
+        m.move(pos=(m.pos[0] + shift[0], m.pos[1], m.pos[2] + shift[2]), ease=REARRANGE_EASE)
     m.move(gap=open_gap)
     m.move(pos=(m.pos[0], safe_y, m.pos[2]))
 
