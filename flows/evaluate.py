@@ -35,7 +35,7 @@ from pasta.config import load
 from pasta.config.schema import TaskConfig
 from pasta.data.configurations import EvaluationProblem, evaluation_problem, evaluation_problems
 from pasta.evaluate import EvaluationResult, check_executor, evaluate_problem, render_result_strip, summary_metrics
-from pasta.evaluate.oracle import check_plan_source
+from pasta.evaluate.oracle import check_plan_source, needs_models
 from pasta.plan import PlanSettings
 from pasta.train.bundle import TrainedModels
 from pasta.train.locate import trained_models
@@ -46,11 +46,6 @@ def evaluate_configuration(cfg: TaskConfig, bundle: TrainedModels | None, proble
                            executor: str, settings: PlanSettings, plan_source: str = "learned") -> EvaluationResult:
     """Plan and execute one configuration (called directly, so it runs in the flow's thread)."""
     return evaluate_problem(cfg, bundle, problem, seed, executor, settings, plan_source)
-
-
-def needs_models(plan_source: str, executor: str) -> bool:
-    """Whether an evaluation needs trained models (every one but the oracle plan run by scripted skills)."""
-    return plan_source == "learned" or executor == "policy"
 
 
 @task(task_run_name="evaluate-{task_name}-config{config_id}-s{seed}", cache_policy=NO_CACHE)

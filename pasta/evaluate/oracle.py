@@ -32,9 +32,15 @@ from pasta.evaluate.execution import Execution, StepRecord, check_executor, park
 from pasta.sim.envs.base import DoughEnv
 from pasta.train.bundle import TrainedModels
 
-__all__ = ["PLAN_SOURCES", "OracleExecution", "attended_components", "check_plan_source", "execute_oracle"]
+__all__ = ["PLAN_SOURCES", "OracleExecution", "attended_components", "check_plan_source", "execute_oracle",
+           "needs_models"]
 
 PLAN_SOURCES = ("learned", "oracle")
+
+
+def needs_models(plan_source: str, executor: str) -> bool:
+    """Whether an evaluation needs trained models (every one but the oracle plan run by scripted skills)."""
+    return plan_source == "learned" or executor == "policy"
 
 
 def check_plan_source(plan_source: str) -> str:
@@ -64,12 +70,11 @@ def execute_oracle(cfg: TaskConfig, env: DoughEnv, chain: Sequence[OracleStep], 
                    bundle: TrainedModels | None, rng: np.random.Generator) -> OracleExecution:
     """Execute the ground-truth ``chain`` from the environment's current (settled) state.
 
-    ``bundle`` is needed by the policy executor only (its policies, and its VAE for the subgoal latents).
+    ``bundle`` is needed by the policy executor only (its policies, and its VAE for the subgoal latents;
+    :func:`pasta.evaluate.execution.run_skill` refuses a policy step without it).
     A step whose simulation blows up stops the execution; its ``failure`` names the step and the value.
     """
     check_executor(executor)
-    if executor == "policy" and bundle is None:
-        raise ValueError("the policy executor needs trained models; the scripted one runs without")
     m = cfg.sim.observation_points
     records: list[StepRecord] = []
     attention: list[tuple[int, ...]] = []

@@ -25,7 +25,7 @@ from pasta.data.configurations import EvaluationProblem, oracle_chain
 from pasta.evaluate.encoding import EncodedScene, encode_scene
 from pasta.evaluate.execution import Execution, check_executor, decode_set, execute_plan
 from pasta.evaluate.metrics import planned_goal_distance, shape_distance
-from pasta.evaluate.oracle import check_plan_source, execute_oracle
+from pasta.evaluate.oracle import check_plan_source, execute_oracle, needs_models
 from pasta.geometry.distances import is_success, normalised_performance
 from pasta.plan import NoSkillSequenceError, Plan, PlanSettings, plan, plan_receding_horizon
 from pasta.sim.envs import make_env
@@ -195,7 +195,7 @@ def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels | None, problem: Eva
     check_plan_source(plan_source)
     if problem.task != cfg.task:
         raise ValueError(f"problem {problem.config_id} is a {problem.task} problem, the config is {cfg.task}")
-    if bundle is None and (plan_source == "learned" or executor == "policy"):
+    if bundle is None and needs_models(plan_source, executor):
         raise ValueError(f"plan {plan_source!r} with executor {executor!r} needs trained models")
     settings = dataclasses.replace(settings, seed=seed)
     rng = np.random.default_rng([seed, problem.config_id])
