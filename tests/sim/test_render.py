@@ -74,6 +74,9 @@ def test_render_strip_accepts_observation_like_objects(tmp_path):
     np.testing.assert_array_equal(_pixels(png), _pixels(as_mappings))  # objects and mappings draw alike
     swapped = render_strip([_state(1), _state(0)], tmp_path / "swapped.png")
     assert (_pixels(swapped) != _pixels(png)).any(), "each frame draws its own state"
+    without_tools = render_strip([{**_state(0), "tool_points": {}}, {**_state(1), "tool_points": {}}],
+                                 tmp_path / "no_tools.png")
+    assert (_pixels(without_tools) != _pixels(png)).sum() > 100, "a frame draws its tools"
 
 
 def test_bad_inputs_raise_and_write_nothing(tmp_path):
