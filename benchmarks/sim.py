@@ -1,11 +1,16 @@
 """Simulator speed and memory: forward and forward+backward throughput, episode time per task.
 
 Each measurement runs in its own process (Taichi is one runtime per process and
-peak memory is per process). Prints a table and writes JSON to
-``benchmarks/results/sim.json``.
+peak memory is per process), ``--repeats`` times (default 3), the repeats of all
+configurations interleaved so that a change in background load hits them alike;
+the table shows each configuration's median. Every measurement is made with each
+3x3 SVD of ``--svd`` (``SimConfig.svd``: Taichi's built-in and the closed-form
+``pasta.sim.svd3``), side by side. Prints a table with the load average and the
+CPU count, and writes JSON to ``benchmarks/results/sim.json``.
 
     python benchmarks/sim.py            # full set
-    python benchmarks/sim.py --quick    # reduced set, a few minutes
+    python benchmarks/sim.py --quick    # reduced set (one task), a few minutes
+    python benchmarks/sim.py --svd fast --repeats 5
     python benchmarks/sim.py --compile  # also time a cold kernel compile (empty cache)
     python benchmarks/sim.py --arch cuda  # Taichi on a GPU (writes sim_cuda.json)
 """
@@ -14,6 +19,7 @@ import argparse
 import json
 import os
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -25,6 +31,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 LAYOUTS_FULL = [(32, 5000), (48, 8000), (64, 30000)]
 LAYOUTS_QUICK = [(32, 5000), (48, 8000)]
 TASKS = ["LiftSpread", "GatherMove", "CutRearrange", "CRS", "CRS-Twice"]
+TASKS_QUICK = ["CutRearrange"]
+SVD_CHOICES = ("taichi", "fast")
 
 
 def substeps_for(n_grid: int) -> tuple[float, int]:
@@ -45,8 +53,9 @@ def _sync(arch: str) -> None:
         ti.sync()
 
 
-def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int, arch: str = "cpu") -> dict:
-    """Throughput of one (grid, particles) layout: a box pressing a block."""
+def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int, arch: str = "cpu",
+                   svd: str = "taichi") -> dict:
+    """Throughput of one (grid, particles) layout with one SVD method: a box pressing a block."""
     import numpy as np
 
     from pasta.config.schema import MaterialConfig, SimConfig, ToolConfig
@@ -55,7 +64,7 @@ def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int, a
 
     dt, substeps = substeps_for(n_grid)
     sim_cfg = SimConfig(n_grid=n_grid, dt_s=dt, substeps_per_step=substeps, n_particles=n_particles,
-                        gravity_m_s2=(0, -600, 0), contact_softness=666.0, arch=arch)
+                        gravity_m_s2=(0, -600, 0), contact_softness=666.0, arch=arch, svd=svd)
     material = MaterialConfig(youngs_modulus_pa=5e3, poisson_ratio=0.15, yield_stress_pa=150, ground_friction=0.5)
     tool = ToolConfig(name="pusher", kind="box", position=(0.5, 0.2, 0.5), half_extents=(0.06, 0.02, 0.06),
                       action_scales=(0.01, 0.01, 0.01, 0.0, 0.0, 0.0), friction=1.0)
@@ -64,7 +73,7 @@ def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int, a
     state = {"x": x, "tool_pos": np.array([[0.5, 0.2, 0.5]]), "tool_rot": np.array([[1.0, 0, 0, 0]]),
              "tool_gap": np.zeros(1)}
     press = np.array([0.0, -0.3, 0.0, 0.0, 0.0, 0.0], np.float32)
-    result = {"n_grid": n_grid, "n_particles": n_particles, "substeps_per_step": substeps}
+    result = {"n_grid": n_grid, "n_particles": n_particles, "substeps_per_step": substeps, "svd": svd}
 
     sim = simulator_for(sim_cfg, [tool], differentiable=False)
     sim.set_material(material)
@@ -100,14 +109,14 @@ def measure_layout(n_grid: int, n_particles: int, steps: int, grad_steps: int, a
     return result
 
 
-def measure_task(task: str, steps: int, arch: str = "cpu") -> dict:
+def measure_task(task: str, steps: int, arch: str = "cpu", svd: str = "taichi") -> dict:
     """Seconds for one episode of ``steps`` environment steps of a task at the small profile."""
     import numpy as np
 
     from pasta.config import load
     from pasta.sim.envs import default_configuration, make_env
 
-    cfg = load(task, "small", [f"sim.arch={arch}"])
+    cfg = load(task, "small", [f"sim.arch={arch}", f"sim.svd={svd}"])
     env = make_env(cfg)
     configuration = default_configuration(cfg, np.random.default_rng(0))
     env.reset(configuration)
@@ -120,7 +129,7 @@ def measure_task(task: str, steps: int, arch: str = "cpu") -> dict:
         env.step(action)
     _sync(arch)
     seconds = time.perf_counter() - start
-    return {"task": task, "profile": "small", "n_grid": cfg.sim.n_grid, "n_particles": cfg.sim.n_particles,
+    return {"task": task, "profile": "small", "svd": svd, "n_grid": cfg.sim.n_grid, "n_particles": cfg.sim.n_particles,
             "steps": steps, "seconds": seconds, "seconds_per_50_steps": seconds * 50 / steps,
             "peak_rss_mb": peak_rss_mb()}
 
@@ -130,10 +139,10 @@ def measure_cold_compile() -> dict:
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, TI_OFFLINE_CACHE_FILE_PATH=cache)
         start = time.perf_counter()
-        run_child(["layout", "32", "2000", "1", "1"], env)
+        run_child(["layout", "32", "2000", "1", "1", "taichi"], env)
         cold = time.perf_counter() - start
         start = time.perf_counter()
-        run_child(["layout", "32", "2000", "1", "1"], env)
+        run_child(["layout", "32", "2000", "1", "1", "taichi"], env)
         warm = time.perf_counter() - start
     return {"cold_s": cold, "warm_s": warm}
 
@@ -147,25 +156,67 @@ def run_child(args: list[str], env: dict | None = None, arch: Sequence[str] = ()
 def child_main(args: list[str], arch: str) -> None:
     if args[0] == "layout":
         n_grid, n_particles, steps, grad_steps = map(int, args[1:5])
-        result = measure_layout(n_grid, n_particles, steps, grad_steps, arch)
+        result = measure_layout(n_grid, n_particles, steps, grad_steps, arch, args[5])
     else:
-        result = measure_task(args[1], int(args[2]), arch)
+        result = measure_task(args[1], int(args[2]), arch, args[3])
     print(json.dumps(result))
 
 
-def print_table(layouts: list[dict], tasks: list[dict], compile_times: dict | None) -> None:
-    print("\n| grid | particles | substeps/step | fwd M particle-substeps/s | fwd ms/substep "
+def median_result(runs: list[dict]) -> dict:
+    """The first run's entries with every float replaced by its median over ``runs``; ``runs``: their number."""
+    result = {key: statistics.median(r[key] for r in runs) if isinstance(value, float) else value
+              for key, value in runs[0].items()}
+    result["runs"] = len(runs)
+    return result
+
+
+def run_repeated(configurations: list[list[str]], repeats: int, arch: Sequence[str]) -> list[dict]:
+    """Median results of each child configuration, run ``repeats`` times in rounds over all of them."""
+    runs: list[list[dict]] = [[] for _ in configurations]
+    for _ in range(repeats):
+        for done, args in zip(runs, configurations, strict=True):
+            done.append(run_child(args, arch=arch))
+    return [median_result(r) for r in runs]
+
+
+def svd_choices(text: str) -> list[str]:
+    """``--svd``: a comma-separated list of ``SVD_CHOICES``."""
+    choices = [c.strip() for c in text.split(",") if c.strip()]
+    unknown = sorted(set(choices) - set(SVD_CHOICES))
+    if not choices or unknown:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list of {', '.join(SVD_CHOICES)}, got {text!r}")
+    return list(dict.fromkeys(choices))
+
+
+def load_average() -> list[float]:
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+def print_table(payload: dict) -> None:
+    layouts, tasks, compile_times = payload["layouts"], payload["tasks"], payload["compile"]
+    print(f"\n{payload['cpu_count']} CPUs (os.cpu_count()); load average (1, 5, 15 min) "
+          f"{payload['load_average_start']} at the start, {payload['load_average_end']} at the end; "
+          f"medians of {payload['repeats']} runs")
+    print("\n| grid | particles | substeps/step | svd | fwd M particle-substeps/s | fwd ms/substep "
           "| fwd+bwd M/s | (fwd+bwd)/fwd | peak RSS MB |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in layouts:
-        print(f"| {r['n_grid']} | {r['n_particles']} | {r['substeps_per_step']} | {r['forward_mps']:.2f} "
+        print(f"| {r['n_grid']} | {r['n_particles']} | {r['substeps_per_step']} | {r['svd']} | {r['forward_mps']:.2f} "
               f"| {r['forward_ms_per_substep']:.2f} | {r['forward_backward_mps']:.2f} "
               f"| {r['forward_backward_over_forward']:.2f} | {r['peak_rss_mb']:.0f} |")
+    by_layout = {(r["n_grid"], r["n_particles"], r["svd"]): r for r in layouts}
+    for (g, n, svd), r in by_layout.items():
+        if svd == "fast" and (g, n, "taichi") in by_layout:
+            base = by_layout[g, n, "taichi"]
+            print(f"grid {g}, {n} particles: svd fast / taichi throughput, forward "
+                  f"{r['forward_mps'] / base['forward_mps']:.2f}x, forward+backward "
+                  f"{r['forward_backward_mps'] / base['forward_backward_mps']:.2f}x")
     if tasks:
-        print("\n| task (small) | grid | particles | s per 50-step episode |")
-        print("|---|---|---|---|")
+        print("\n| task (small) | grid | particles | svd | s per 50-step episode |")
+        print("|---|---|---|---|---|")
         for r in tasks:
-            print(f"| {r['task']} | {r['n_grid']} | {r['n_particles']} | {r['seconds_per_50_steps']:.1f} |")
+            print(f"| {r['task']} | {r['n_grid']} | {r['n_particles']} | {r['svd']} "
+                  f"| {r['seconds_per_50_steps']:.1f} |")
     if compile_times:
         print(f"\nkernel compile, grid 32 / 2000 particles, forward + gradient kernels: "
               f"{compile_times['cold_s']:.0f} s cold, {compile_times['warm_s']:.0f} s with the offline cache")
@@ -174,6 +225,9 @@ def print_table(layouts: list[dict], tasks: list[dict], compile_times: dict | No
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="reduced set (a few minutes)")
+    parser.add_argument("--svd", type=svd_choices, default=list(SVD_CHOICES),
+                        help="comma-separated 3x3 SVD methods to compare (default: taichi,fast)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per configuration, median reported (default 3)")
     parser.add_argument("--compile", action="store_true", help="also time a cold kernel compile")
     parser.add_argument("--arch", default="cpu", choices=["cpu", "cuda"], help="Taichi architecture")
     parser.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
@@ -181,21 +235,28 @@ def main() -> None:
     if args.child:
         child_main(args.child, args.arch)
         return
+    if args.repeats < 1:
+        parser.error("--repeats must be at least 1")
     layouts = LAYOUTS_QUICK if args.quick else LAYOUTS_FULL
+    tasks = TASKS_QUICK if args.quick else TASKS
     steps, grad_steps, task_steps = (5, 2, 10) if args.quick else (20, 5, 50)
     arch = ["--arch", args.arch]
-    layout_results = [run_child(["layout", str(g), str(n), str(steps), str(grad_steps)], arch=arch)
-                      for g, n in layouts]
-    task_results = [run_child(["task", task, str(task_steps)], arch=arch) for task in TASKS]
+    load_start = load_average()
+    layout_results = run_repeated([["layout", str(g), str(n), str(steps), str(grad_steps), svd]
+                                   for g, n in layouts for svd in args.svd], args.repeats, arch)
+    task_results = run_repeated([["task", task, str(task_steps), svd] for task in tasks for svd in args.svd],
+                                args.repeats, arch)
     compile_times = measure_cold_compile() if args.compile else None
     RESULTS.mkdir(parents=True, exist_ok=True)
-    payload = {"quick": args.quick, "arch": args.arch, "cpu_count": os.cpu_count(), "layouts": layout_results,
-               "tasks": task_results, "compile": compile_times, "measured_at": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    payload = {"quick": args.quick, "arch": args.arch, "cpu_count": os.cpu_count(), "svd": args.svd,
+               "repeats": args.repeats, "load_average_start": load_start, "load_average_end": load_average(),
+               "layouts": layout_results, "tasks": task_results, "compile": compile_times,
+               "measured_at": time.strftime("%Y-%m-%dT%H:%M:%S")}
     target = RESULTS / f"sim{'_quick' if args.quick else ''}{'' if args.arch == 'cpu' else '_' + args.arch}.json"
     tmp = target.with_suffix(".tmp")
     tmp.write_text(json.dumps(payload, indent=2))
     tmp.replace(target)
-    print_table(layout_results, task_results, compile_times)
+    print_table(payload)
     print(f"\nwrote {target}")
 
 

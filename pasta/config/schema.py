@@ -75,6 +75,10 @@ class SimConfig(Frozen):
     # cores), "parallel" (atomic adds: needed on a GPU, where a serial scatter is one thread), or "auto":
     # serial on the CPU, parallel on CUDA.
     p2g: Literal["auto", "serial", "parallel"] = "auto"
+    # The per-particle 3x3 SVD of every substep: "taichi" (the built-in iterative ti.svd) or "fast"
+    # (pasta.sim.svd3: closed-form, about a third of the cost on the CPU). Both share one convention, and
+    # the adjoint (MPMSimulator.svd_grad) serves both.
+    svd: Literal["taichi", "fast"] = "taichi"
     steps_per_skill: int = Field(default=50, ge=1)
     settle_steps: int = Field(default=10, ge=0)
     observation_points: int = Field(default=1000, ge=1)
@@ -201,6 +205,10 @@ class DataConfig(Frozen):
     dbscan_eps: float = Field(default=0.03, gt=0)
     dbscan_min_samples: int = Field(default=6, ge=1)
     dbscan_min_points: int = Field(default=10, ge=0)
+    # Flat spread targets (LiftSpread, CRS, CRS-Twice): "official" keeps the official z-width (0.16,
+    # 0.13); "rolled" takes the piece's own z-width, so the length along x (the rolling direction)
+    # keeps the volume (pasta.data.configurations.flat_width).
+    flat_targets: Literal["official", "rolled"] = "official"
 
 
 class TrainConfig(Frozen):

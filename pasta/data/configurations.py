@@ -36,7 +36,9 @@ Where this differs from the official generators, and why:
 * **Flat targets are at least two grid cells thick**: the official height range (CRS
   U(0.016, 0.018), LiftSpread U(0.025, 0.04)) is scaled by ``max(1, 2 dx / low)``
   (:func:`flat_height_range`); the length keeps the volume. LiftSpread balls are then drawn with
-  radius >= h / 1.5 so that spreading really flattens them.
+  radius >= h / 1.5 so that spreading really flattens them. With ``data.flat_targets: rolled``
+  (:func:`flat_width`, the `small` profile) the z-width is the piece's own, so the box lengthens along
+  x, the pin's rolling direction, and LiftSpread's box is centred where the lift leaves the ball.
 * **Volume-preserving LiftSpread and GatherMove targets** (the official ones were sampled with
   their own sizes and particle counts, env_spec §1.7, §2.2): every target has exactly
   ``cfg.sim.n_particles`` particles, the flat box keeps the ball's volume and the ball on the board
@@ -401,8 +403,10 @@ def _lift_spread_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
     r = float(rng.choice(radii if len(radii) else LS_RADII[-1:]))
     x_board = float(rng.uniform(*LS_BOARD_X))
     x_flat = float(rng.uniform(*LS_FLAT_X))
+    if cfg.data.flat_targets == "rolled":  # a pin flattens the ball where it lies; it cannot carry it 0.1 along
+        x_flat = x_board
     ball = SpherePiece(centre=(LS_TABLE_X, max(floor, spatula_top) + r, 0.5), radius=r)
-    flat = _flat_box(ball.volume, h, LS_FLAT_WIDTH, x_flat, 0.5, board_top, board_x)
+    flat = _flat_box(ball.volume, h, flat_width(cfg, LS_FLAT_WIDTH, 2 * r), x_flat, 0.5, board_top, board_x)
     return _Chain(
         pieces=[ball],
         skills=["lift", "spread"],
@@ -463,9 +467,16 @@ def _crs_box(cfg: TaskConfig, length: float, width: float, x: float, z: float) -
                     half_extents=(0.5 * length, 0.5 * DOUGH_HEIGHT, 0.5 * width))
 
 
-def _crs_flat(cfg: TaskConfig, rng: np.random.Generator, volume: float, x: float, z: float) -> BoxPiece:
+def flat_width(cfg: TaskConfig, official: float, piece: float) -> float:
+    """z-width of a flat spread target: the official constant, or (``data.flat_targets: rolled``) the
+    piece's own z-width, so that the length along x, the rolling direction, keeps the volume."""
+    return official if cfg.data.flat_targets == "official" else piece
+
+
+def _crs_flat(cfg: TaskConfig, rng: np.random.Generator, volume: float, x: float, z: float,
+              piece_width: float) -> BoxPiece:
     h = float(rng.uniform(*flat_height_range(cfg, *CRS_FLAT_HEIGHT)))
-    return _flat_box(volume, h, CRS_FLAT_WIDTH, x, z, floor_height(cfg.sim))
+    return _flat_box(volume, h, flat_width(cfg, CRS_FLAT_WIDTH, piece_width), x, z, floor_height(cfg.sim))
 
 
 def _crs_cut_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
@@ -491,7 +502,7 @@ def _crs_push_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
 def _crs_spread_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
     length, width = float(rng.uniform(*CRS_PIECE_LENGTH)), float(rng.uniform(*CRS_WIDTH))
     x, z = float(rng.uniform(*CRS_SPREAD_X)), 0.5 + float(rng.uniform(-CRS_DZ, CRS_DZ))
-    flat = _crs_flat(cfg, rng, length * DOUGH_HEIGHT * width, x, z)
+    flat = _crs_flat(cfg, rng, length * DOUGH_HEIGHT * width, x, z, width)
     return _Chain(pieces=[_crs_box(cfg, length, width, x, z)], skills=["spread"], acted=[(0,)],
                   transforms=[_reshape(0, lambda s: flat)])
 
@@ -504,7 +515,7 @@ def _crs_eval_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
     left_end = CRS_RIGHT_END_X - length
     piece = float(rng.uniform(*CRS_PIECE_LENGTH))
     xt, zt = float(rng.uniform(*CRS_SPREAD_X)), 0.5 + float(rng.uniform(-CRS_DZ, CRS_DZ))
-    flat = _crs_flat(cfg, rng, piece * DOUGH_HEIGHT * width, xt, zt)
+    flat = _crs_flat(cfg, rng, piece * DOUGH_HEIGHT * width, xt, zt, width)
     return _Chain(
         pieces=[_crs_box(cfg, length, width, left_end + 0.5 * length, z)],
         skills=["cut", "push", "spread"],
@@ -531,8 +542,8 @@ def _crs_twice_eval_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
         if CRS_FLAT_WIDTH + CRS_TWICE_FLAT_DZ[0] < abs(z1 - z2) < CRS_FLAT_WIDTH + CRS_TWICE_FLAT_DZ[1]:
             break
     x1, x2 = rng.uniform(*CRS_SPREAD_X, size=2)
-    flat_a = _crs_flat(cfg, rng, CRS_TWICE_SECOND_CUT * DOUGH_HEIGHT * width, float(x1), float(z1))
-    flat_b = _crs_flat(cfg, rng, (first - second) * DOUGH_HEIGHT * width, float(x2), float(z2))
+    flat_a = _crs_flat(cfg, rng, CRS_TWICE_SECOND_CUT * DOUGH_HEIGHT * width, float(x1), float(z1), width)
+    flat_b = _crs_flat(cfg, rng, (first - second) * DOUGH_HEIGHT * width, float(x2), float(z2), width)
     a, b = 0, CUT_LABEL + 1  # A keeps label 0; the first cut makes the rest CUT_LABEL, the second B
     return _Chain(
         pieces=[_crs_box(cfg, length, width, left_end + 0.5 * length, z)],

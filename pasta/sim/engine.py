@@ -29,6 +29,7 @@ import taichi as ti
 from pasta.config.schema import MaterialConfig, SimConfig, ToolConfig
 from pasta.sim.quaternion import axis_angle_to_quat, quat_mul, quat_normalised, quat_to_matrix
 from pasta.sim.runtime import ensure_taichi
+from pasta.sim.svd3 import fast_svd
 from pasta.sim.tool_geometry import box_sdf_normal, capsule_sdf_normal, knife_sdf_normal
 
 ACTION_DIMS = {"box": 6, "knife": 3, "gripper": 7, "rolling_pin": 6}
@@ -38,6 +39,16 @@ MAX_SPEED = 1e3
 # Soft contact acts where exp(-softness * sdf) exceeds this; the official 0.1 cut-off makes the
 # contact force jump, which finite differences see and adjoints do not.
 SOFT_CONTACT_CUTOFF = 1e-3
+
+
+@ti.func
+def taichi_svd(F):
+    """Taichi's built-in iterative 3x3 SVD (``ti.svd``) in float32: (U, sig, V), each (3, 3)."""
+    return ti.svd(F, ti.f32)
+
+
+# The 3x3 SVDs a simulator may use (``SimConfig.svd``), all in ``ti.svd``'s convention.
+SVD_METHODS = {"taichi": taichi_svd, "fast": fast_svd}
 
 
 @ti.func
@@ -81,6 +92,7 @@ class SimLayout:
     collisions: tuple[tuple[int, int], ...] = ()
     static_tools: tuple[bool, ...] = ()
     serial_p2g: bool = True
+    svd: str = "taichi"
 
 
 @ti.data_oriented
@@ -88,7 +100,7 @@ class MPMSimulator:
     """MLS-MPM simulator for one dough and a fixed set of tools.
 
     Args:
-        layout: grid size, particle count, dt, substeps per step, tool kinds.
+        layout: grid size, particle count, dt, substeps per step, tool kinds, the SVD method.
         lower_bound_cells: particles are clamped to ``[max(1, lower) * dx, 1 - 3 dx]``.
         boundary_cells: thickness of the wall band in grid cells.
         arch: Taichi architecture, ``"cpu"``, ``"cuda"`` or ``"auto"`` (:func:`ensure_taichi`).
@@ -98,6 +110,9 @@ class MPMSimulator:
         ensure_taichi(arch)
         self.layout = layout
         self.serial_p2g = layout.serial_p2g
+        if layout.svd not in SVD_METHODS:
+            raise ValueError(f"svd must be one of {sorted(SVD_METHODS)}, got {layout.svd!r}")
+        self.decompose = SVD_METHODS[layout.svd]  # (U, sig, V) of a 3x3 matrix, a Taichi function
         self.n = layout.n_particles
         self.n_grid = layout.n_grid
         self.dx = 1.0 / layout.n_grid
@@ -278,7 +293,7 @@ class MPMSimulator:
     @ti.kernel
     def svd(self, f: ti.i32):
         for p in range(self.n):
-            self.U[f, p], self.sig[f, p], self.V[f, p] = ti.svd(self.F_trial[p], ti.f32)
+            self.U[f, p], self.sig[f, p], self.V[f, p] = self.decompose(self.F_trial[p])
 
     @ti.kernel
     def svd_grad(self, f: ti.i32):
@@ -328,7 +343,7 @@ class MPMSimulator:
         """Forward-only: trial F, SVD and stress in one pass over the particles."""
         for p in range(self.n):
             F_trial = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
-            U, sig, V = ti.svd(F_trial, ti.f32)
+            U, sig, V = self.decompose(F_trial)
             self.stress_for(f, p, U, sig, V)
 
     @ti.kernel
@@ -891,6 +906,7 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
         collisions=collision_pairs(tools),
         static_tools=tuple(t.static for t in tools),
         serial_p2g=sim.p2g == "serial" or (sim.p2g == "auto" and arch == "cpu"),
+        svd=sim.svd,
     )
     key = (layout, sim.particle_lower_bound_cells, sim.boundary_cells)
     if key not in _SIMULATORS:

@@ -307,6 +307,34 @@ def test_flat_targets_are_two_cells_thick(profile):
         assert low - 1e-4 <= float(np.ptp(spread.target[:, 1])) <= high + 1e-4
 
 
+@pytest.mark.parametrize("task", ["LiftSpread", "CRS"])
+def test_rolled_flat_targets_keep_the_piece_width_and_lengthen_along_x(task):
+    """``data.flat_targets: rolled``: the flat target is as wide in z as the piece, keeps its volume in its
+    length along x, and (LiftSpread) lies where the lift left the ball; "official" keeps the official width."""
+    rolled = config.load(task, "smoke", ["data.flat_targets=rolled"])
+    checked = 0
+    for config_id, skill in enumerate(skill_schedule(rolled)):
+        if skill != "spread":
+            continue
+        problem, official = skill_problem(rolled, config_id), skill_problem(cfg_of(task), config_id)
+        piece, flat = attended_points(rolled, problem), np.asarray(problem.target)
+        np.testing.assert_array_equal(problem.initial.particles, official.initial.particles)
+        assert np.ptp(flat[:, 2]) == pytest.approx(np.ptp(piece[:, 2]), abs=0.01), config_id
+        assert np.ptp(flat[:, 1]) == pytest.approx(np.ptp(official.target[:, 1]), rel=1e-3)  # same height draw
+        # longer along the rolling direction, by as much as it is narrower in z
+        widths = np.ptp(official.target[:, 2]) / np.ptp(flat[:, 2])
+        assert widths > 1.1 and np.ptp(flat[:, 0]) == pytest.approx(np.ptp(official.target[:, 0]) * widths, rel=0.03)
+        if task == "LiftSpread":
+            assert flat[:, 0].mean() == pytest.approx(piece[:, 0].mean(), abs=3e-3)
+            assert bbox_volume(flat) == pytest.approx(ellipsoid_volume(piece), rel=0.02)
+            assert np.ptp(official.target[:, 2]) == pytest.approx(0.16, abs=3e-3)
+        else:
+            assert bbox_volume(flat) == pytest.approx(bbox_volume(piece), rel=0.02)
+            assert np.ptp(official.target[:, 2]) == pytest.approx(CRS_FLAT_WIDTH, abs=3e-3)
+        checked += 1
+    assert checked >= 1
+
+
 def test_flattening_and_reshaping_preserve_volume():
     checked = 0
     for task in ("LiftSpread", "GatherMove", "CRS", "CRS-Twice"):

@@ -250,9 +250,11 @@ def test_push_placed_without_a_target_starts_on_the_plus_x_side():
 
 def test_spread_flattens_the_dough_towards_the_target():
     env, target, _ = spread_problem()
+    length = np.ptp(env.particles()[:, 0])
     improvement = run_skill(env, "spread", target)
     assert improvement > 0.4, improvement
     assert np.percentile(env.particles()[:, 1], 99) < env.floor_y + 0.06  # the 0.08 dough is lower
+    assert np.ptp(env.particles()[:, 0]) > length + 0.02  # and longer along x, the pin's rolling direction
 
 
 def test_lift_carries_the_ball_onto_the_board():

@@ -22,11 +22,15 @@ PUSHER = ToolConfig(name="pusher", kind="box", position=(0.5, 0.3, 0.5), half_ex
                     action_scales=(0.02, 0.02, 0.02, 0.05, 0.05, 0.05), friction=1.0)
 
 
-@pytest.fixture(scope="module")
-def sim():
-    simulator = simulator_for(SIM, [PUSHER], differentiable=True)
+def differentiable_simulator(svd: str = "taichi"):
+    simulator = simulator_for(SIM.model_copy(update={"svd": svd}), [PUSHER], differentiable=True)
     simulator.set_material(MATERIAL)
     return simulator
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return differentiable_simulator()
 
 
 def make_problem(seed: int):
@@ -56,8 +60,8 @@ def relative_error(a: float, b: float) -> float:
     return abs(a - b) / max(abs(a), abs(b), 1e-12)
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_action_gradient_matches_finite_differences(sim, seed):
+def check_action_gradient(sim, seed: int) -> None:
+    """One action entry's adjoint gradient of a random linear loss against central differences."""
     state0, actions, wx, wv = make_problem(seed)
     x0 = torch.tensor(state0["x"], dtype=torch.float64)
     actions.requires_grad_(True)
@@ -72,8 +76,8 @@ def test_action_gradient_matches_finite_differences(sim, seed):
     assert relative_error(ad, fd) < 0.05, f"seed {seed}: autodiff {ad} vs finite differences {fd}"
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_initial_position_gradient_matches_finite_differences(sim, seed):
+def check_initial_position_gradient(sim, seed: int) -> None:
+    """One initial position entry's adjoint gradient of a random linear loss against central differences."""
     state0, actions, wx, wv = make_problem(seed)
     x0 = torch.tensor(state0["x"], dtype=torch.float64, requires_grad=True)
     episode_loss(sim, state0, x0, actions, wx, wv).backward()
@@ -85,6 +89,24 @@ def test_initial_position_gradient_matches_finite_differences(sim, seed):
     fd /= 2 * h
     ad = x0.grad[particle, dim].item()
     assert relative_error(ad, fd) < 0.05, f"seed {seed}: autodiff {ad} vs finite differences {fd}"
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_action_gradient_matches_finite_differences(sim, seed):
+    check_action_gradient(sim, seed)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_initial_position_gradient_matches_finite_differences(sim, seed):
+    check_initial_position_gradient(sim, seed)
+
+
+def test_gradients_with_the_fast_svd_match_finite_differences():
+    """The adjoint of the SVD (svd_grad) holds for the closed-form SVD too (SimConfig.svd = "fast")."""
+    sim = differentiable_simulator("fast")
+    for seed in (0, 1):
+        check_action_gradient(sim, seed)
+        check_initial_position_gradient(sim, seed)
 
 
 def test_gradient_through_long_episode_is_finite_and_memory_bounded(sim):
