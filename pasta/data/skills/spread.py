@@ -13,7 +13,8 @@ from pasta.sim.envs.base import DoughEnv, ToolPose
 ROLL_CLEARANCE = 0.01  # the rolling pin starts this far above the dough
 PIN_GAP_CELLS = 1.5  # the rolling pin stops this many grid cells above a static support (the board)
 ROLL_SPAN = 0.2  # the rolling pin rolls over this fraction of the target's half length each side
-PRESS_OVERSHOOT = 0.01  # the pin presses this far below the target's top: the dough springs back up
+PRESS_OVERSHOOT = 0.01  # the pin presses this far below the target's top (the dough springs back up) ...
+PRESS_OVERSHOOT_SHARE = 0.25  # ... or this share of the target's thickness where that is less
 ROLL_ONLY_SPEED = 0.15  # roll action of a pin without a slide action (its bottom slips at twice its speed)
 
 
@@ -37,11 +38,12 @@ def spread(env: DoughEnv, m: Motion, scene: Scene) -> None:
 
     The pin's bottom goes to the dough's support height plus the target's thickness, less
     ``PRESS_OVERSHOOT`` (at grid 48 it raised the median of single-skill spreads from 0.44 to 0.51 on
-    LiftSpread and from 0.49 to 0.52 on CRS). The to-and-fro spans ``ROLL_SPAN`` of the target's
-    half length on each side of its centre and rolls without
-    slipping: with RollingPinExt kinematics (env_spec 1.5) a roll action alone moves the pin's
-    bottom at twice the pin's speed, which flings the dough ahead, so the roll (a0) is combined
-    with a slide (a3) that cancels the slip. Wide passes push the dough out of the target instead
+    LiftSpread and from 0.49 to 0.52 on CRS), or less a quarter of a thinner target's thickness (a
+    0.017 target at grid 32 pressed 0.01 deeper squirts the dough out: 0.4 -> -0.07). The to-and-fro
+    spans ``ROLL_SPAN`` of the target's half length on each side of its centre and rolls without
+    slipping: with RollingPinExt kinematics (env_spec 1.5) a roll action alone moves the pin's bottom
+    at twice the pin's speed, which flings the dough ahead, so the roll (a0) is combined with a slide
+    (a3) that cancels the slip. Wide passes push the dough out of the target instead
     of flattening it (measured at grids 32 and 48: pressing does most of the spreading).
     """
     tool = m.tool
@@ -49,7 +51,9 @@ def spread(env: DoughEnv, m: Motion, scene: Scene) -> None:
     direction = _pin_frame(m.rot)
     goal = scene.destination if scene.destination is not None else scene.attended
     g_lo, g_hi = extent(goal[:, 1])
-    press_y = max(scene.bottom + max(g_hi - g_lo, 1e-3) + r - PRESS_OVERSHOOT, tool.lower_bound[1])
+    thickness = max(g_hi - g_lo, 1e-3)
+    overshoot = min(PRESS_OVERSHOOT, PRESS_OVERSHOOT_SHARE * thickness)
+    press_y = max(scene.bottom + thickness + r - overshoot, tool.lower_bound[1])
     centre = scene.centre
     support_height, on_tool = support(env, centre[0], centre[2])
     if on_tool:
