@@ -26,13 +26,16 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import get_args
+
+from pasta.config.schema import SimConfig
 
 RESULTS = Path(__file__).resolve().parent / "results"
 LAYOUTS_FULL = [(32, 5000), (48, 8000), (64, 30000)]
 LAYOUTS_QUICK = [(32, 5000), (48, 8000)]
 TASKS = ["LiftSpread", "GatherMove", "CutRearrange", "CRS", "CRS-Twice"]
 TASKS_QUICK = ["CutRearrange"]
-SVD_CHOICES = ("taichi", "fast")
+SVD_CHOICES = get_args(SimConfig.model_fields["svd"].annotation)  # the schema's: ("taichi", "fast")
 
 
 def substeps_for(n_grid: int) -> tuple[float, int]:

@@ -43,8 +43,8 @@ def spread(env: DoughEnv, m: Motion, scene: Scene) -> None:
     spans ``ROLL_SPAN`` of the target's half length on each side of its centre and rolls without
     slipping: with RollingPinExt kinematics (env_spec 1.5) a roll action alone moves the pin's bottom
     at twice the pin's speed, which flings the dough ahead, so the roll (a0) is combined with a slide
-    (a3) that cancels the slip. Wide passes push the dough out of the target instead
-    of flattening it (measured at grids 32 and 48: pressing does most of the spreading).
+    (a3) that cancels the slip. Wide passes push the dough out of the target instead of flattening
+    it (measured at grids 32 and 48: pressing does most of the spreading).
     """
     tool = m.tool
     r = tool.radius
