@@ -5,6 +5,7 @@ setup:
 	bash scripts/setup.sh
 
 # The main job: CutRearrange's whole pipeline (data, training, evaluation, report) at the smoke profile.
+# Its report goes to build/reports/ (git-ignored), never to the published reports/.
 run:
 	bash scripts/run.sh --task CutRearrange --profile smoke
 
@@ -26,5 +27,7 @@ lint:
 ui: setup
 	.venv/bin/mlflow ui --backend-store-uri $${MLFLOW_TRACKING_URI:-sqlite:///$(CURDIR)/mlflow.db} --port 5000
 
+# Rebuild every report from MLflow into build/reports/ (git-ignored); `.venv/bin/pasta report --publish`
+# writes the published reports/ instead.
 report: setup
 	.venv/bin/pasta report

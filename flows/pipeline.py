@@ -105,12 +105,12 @@ def run(task_names: Sequence[str], profile: str = "smoke", variant: str = "pasta
 
 
 def where_to_look(results: Sequence[dict]) -> str:
-    """The closing message: the report files and how to open the MLflow UI on this store."""
-    lines = ["", "Reports:"]
-    for result in results:
-        lines.extend(f"  {path}" for path in result["report"] if Path(path).suffix == ".md")
+    """The closing message: the report files (the local folder, not the published ``reports/``) and how to open
+    the MLflow UI on this store."""
+    files = [path for result in results for path in result["report"] if Path(path).suffix in {".md", ".csv"}]
+    lines = ["", "Reports:", *(f"  {path}" for path in dict.fromkeys(files))]  # the summary once, not per task
     lines += [
-        f"All reports: {reports_dir()}",
+        f"All reports: {reports_dir()}  (local; the published reports/ change only with `pasta report --publish`)",
         "MLflow UI:  make ui   (or: .venv/bin/mlflow ui --backend-store-uri " + tracking_uri() + ")",
         "            then open http://127.0.0.1:5000 and pick the experiment pasta/<task>",
     ]

@@ -1,10 +1,14 @@
 """Prefect flow: rebuild the reports from MLflow alone, without rerunning anything.
 
-    pasta report                      # every task with runs, plus reports/summary
-    pasta report --task CutRearrange  # that task's report, plus reports/summary
+    pasta report                      # every task with runs, plus summary/, into build/reports (git-ignored)
+    pasta report --task CutRearrange  # that task's report, plus summary/
+    pasta report --publish            # into the committed reports/ instead
+    pasta report --out DIR            # into DIR
 
-Each report is ``reports/<task or summary>/report.md`` with its PNGs (``pasta.report``); the same tables
-are published as Prefect table artifacts and the whole report as a markdown artifact.
+Each report is ``<out>/<task or summary>/report.md`` with its PNGs, beside ``<out>/results.csv`` for every
+task (``pasta.report``). ``<out>`` is ``pasta.paths.reports_dir()`` unless the caller names one, so a local
+rebuild never replaces the published reports. The same tables are published as Prefect table artifacts and
+the whole report as a markdown artifact.
 """
 
 from __future__ import annotations
@@ -21,8 +25,7 @@ from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from pasta import tracking
 from pasta.config.schema import TASK_NAMES
-from pasta.paths import reports_dir
-from pasta.report import SUMMARY, Report, build_report, load_runs, save_report, subject_tasks
+from pasta.report import SUMMARY, Report, load_runs, subject_tasks, write_reports
 
 
 def artifact_bytes(run_id: str, artifact_path: str) -> bytes | None:
@@ -59,20 +62,19 @@ def subjects_with_runs(runs: pd.DataFrame) -> list[str]:
 
 
 @flow(name="report", flow_run_name="report-{task}")
-def report(task: str | None = None) -> list[Path]:
-    """Write the report of ``task`` (or of every task with runs) and the summary; returns the files written."""
+def report(task: str | None = None, out_dir: str | None = None) -> list[Path]:
+    """Write the report of ``task`` (or of every task with runs), the summary and ``results.csv`` under
+    ``out_dir`` (default: the git-ignored ``pasta.paths.reports_dir()``); returns the files written."""
     runs = load_runs(TASK_NAMES)  # all tasks: the summary needs them, and CRS-Twice plans with CRS's models
     subjects = [*([task] if task else subjects_with_runs(runs)), SUMMARY]
-    written: list[Path] = []
-    for subject in subjects:
-        built = build_report(subject, runs, artifact_bytes)
-        written += save_report(built, reports_dir())
+    reports, written = write_reports(subjects, runs, out_dir, artifact_bytes)
+    for built in reports:
         publish(built)
     return written
 
 
-def run(task: str | None = None) -> list[Path]:
+def run(task: str | None = None, out_dir: str | None = None) -> list[Path]:
     """The CLI's entry point: refuse an unknown task before starting Prefect, then run :func:`report`."""
     if task is not None:
         subject_tasks(task)
-    return report(task)
+    return report(task, out_dir)

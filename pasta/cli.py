@@ -3,7 +3,7 @@
     pasta config --task CutRearrange --profile smoke [--set sim.n_grid=40 ...]
     pasta sim-demo --task CutRearrange [--profile smoke] [--out DIR]
     pasta train --task CutRearrange [--profile smoke] [--variant pasta] [--method gbto|scripted]
-    pasta report [--task CutRearrange]
+    pasta report [--task CutRearrange] [--publish | --out DIR]   # default: build/reports (git-ignored)
     pasta status --task CutRearrange [--profile smoke]   # demos, trained variants, evaluations: what a run reuses
     pasta evaluate --task CutRearrange [--profile smoke] [--variant pasta] [--plan oracle] [--executor scripted]
                    [--seeds 0 1 2]
@@ -26,6 +26,7 @@ from collections.abc import Iterator, Sequence
 
 from pasta.config import ConfigError, load, to_yaml  # light: pydantic and yaml only
 from pasta.config.schema import DEMO_METHODS, PROFILE_NAMES, TASK_NAMES, VARIANT_NAMES
+from pasta.paths import published_reports_dir
 
 SWEEP_TASKS = ("CutRearrange", "CRS")  # the tasks of flows/sweeps.py's sweep points
 DEVICE_PATTERN = re.compile(r"(cpu|cuda|mps|xpu)(:\d+)?")
@@ -108,12 +109,20 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def report_out_dir(args: argparse.Namespace) -> str | None:
+    """The folder ``pasta report`` writes: the published ``reports/`` with ``--publish``, ``--out``'s folder, or
+    None for the flow's default (the git-ignored local folder)."""
+    return str(published_reports_dir()) if args.publish else args.out
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     with _prefect(args):
         report_flow = importlib.import_module("flows.report")
-        paths = report_flow.run(args.task)
+        paths = report_flow.run(args.task, report_out_dir(args))
     for path in paths:
         print(path)
+    if not args.publish:
+        print("(the published reports/ that git tracks change only with `pasta report --publish`)")
     return 0
 
 
@@ -274,6 +283,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     report = sub.add_parser("report", help="rebuild the reports (tables, figures) from MLflow alone")
     report.add_argument("--task", default=None, choices=TASK_NAMES, help="one task (default: every task with runs)")
+    where = report.add_mutually_exclusive_group()
+    where.add_argument("--publish", action="store_true",
+                       help="write the published reports/ that git tracks (replaces their figures and tables)")
+    where.add_argument("--out", default=None, metavar="DIR",
+                       help="write into DIR (default: $PASTA_REPORTS_DIR or build/reports, git-ignored)")
     report.set_defaults(func=_cmd_report)
 
     status = sub.add_parser("status", help="what exists for a task and profile (demos, trained variants, "

@@ -2,7 +2,9 @@
 
 * ``PASTA_HOME`` (default ``<repo root>/.pasta_home``): datasets and checkpoints.
 * ``MLFLOW_TRACKING_URI`` (default ``sqlite:///<repo root>/mlflow.db``, absolute): run tracking.
-* ``PASTA_REPORTS_DIR`` (default ``<repo root>/reports``): generated tables and figures.
+* ``PASTA_REPORTS_DIR`` (default ``<repo root>/build/reports``, git-ignored): the tables and figures a local
+  ``pasta report`` rebuilds. The published reports, committed to git, live in ``<repo root>/reports`` and are
+  written only when asked (``pasta report --publish``).
 
 The repo root is the parent of the ``pasta`` package directory. Directories are created on demand.
 """
@@ -67,6 +69,15 @@ def checkpoint_dir(task: str, profile: str, run_name: str | None = None, *, crea
 
 
 def reports_dir() -> Path:
-    """Generated reports (markdown tables and PNG figures): ``$PASTA_REPORTS_DIR`` or ``<repo root>/reports``."""
+    """Where a report rebuild writes by default: ``$PASTA_REPORTS_DIR`` or ``<repo root>/build/reports``.
+
+    Never the published folder (:func:`published_reports_dir`), whose reports may come from a store that no
+    longer exists and so could not be rebuilt here.
+    """
     env = os.environ.get("PASTA_REPORTS_DIR")
-    return _mkdir(Path(env).expanduser().resolve() if env else REPO_ROOT / "reports")
+    return _mkdir(Path(env).expanduser().resolve() if env else REPO_ROOT / "build" / "reports")
+
+
+def published_reports_dir() -> Path:
+    """The published reports, committed to git: ``<repo root>/reports`` (``pasta report --publish``)."""
+    return _mkdir(REPO_ROOT / "reports")

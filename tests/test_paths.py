@@ -44,8 +44,14 @@ def test_data_and_checkpoint_dirs_live_under_pasta_home(tmp_path, monkeypatch):
         paths.data_dir("../CRS", "smoke")
 
 
-def test_reports_dir_is_in_the_repo():
-    assert paths.reports_dir() == REPO_ROOT / "reports"
+def test_a_rebuild_writes_build_reports_not_the_published_reports(tmp_path, monkeypatch):
+    monkeypatch.delenv("PASTA_REPORTS_DIR", raising=False)
+    assert paths.reports_dir() == REPO_ROOT / "build" / "reports"
+    assert paths.published_reports_dir() == REPO_ROOT / "reports"
+    assert "/build/" in (REPO_ROOT / ".gitignore").read_text().split()  # a rebuild leaves git status clean
+    monkeypatch.setenv("PASTA_REPORTS_DIR", str(tmp_path / "elsewhere"))
+    assert paths.reports_dir() == tmp_path / "elsewhere"
+    assert paths.published_reports_dir() == REPO_ROOT / "reports"
 
 
 def test_tracking_uri_from_env(monkeypatch):

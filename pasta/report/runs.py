@@ -6,7 +6,7 @@ everything else takes a DataFrame, so tests can hand it synthetic runs.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -15,6 +15,8 @@ import pandas as pd
 EVAL_METRICS = ("performance", "success_rate", "planning_time_s", "emd_planned_goal", "emd_reached_goal")
 # The tags that tell evaluation runs apart; the newest finished run of each combination counts.
 EVAL_KEYS = ("task", "profile", "experiment", "variant", "sweep_value", "seed")
+# Tags carried beside the keys: how the run planned (learned, oracle) and executed (policy, scripted).
+EVAL_LABELS = ("plan", "executor")
 # Tasks that are planned with another task's models (their train runs live in that task's experiment).
 MODELS_FROM = {"CRS-Twice": "CRS"}
 
@@ -45,24 +47,26 @@ def _finished(runs: pd.DataFrame, stage: str) -> pd.DataFrame:
     return runs[keep]
 
 
-def evaluation_runs(runs: pd.DataFrame) -> pd.DataFrame:
-    """Finished evaluate runs as one row per :data:`EVAL_KEYS` combination (the newest run of each).
+def evaluation_runs(runs: pd.DataFrame, keys: Sequence[str] = EVAL_KEYS) -> pd.DataFrame:
+    """Finished evaluate runs as one row per combination of ``keys`` (the newest run of each).
 
-    Returns columns ``EVAL_KEYS + ("run_id", "start_time") + EVAL_METRICS`` sorted by the keys; a run
-    without ``pasta.experiment`` counts as ``main``. Missing metrics are NaN.
+    Returns columns ``EVAL_KEYS + EVAL_LABELS + ("run_id", "start_time") + EVAL_METRICS`` sorted by ``keys``
+    (any of those tag columns; they must name the seed). A run without ``pasta.experiment`` counts as ``main``,
+    one without ``pasta.plan`` (older than the oracle plan) as ``learned``. Missing metrics are NaN.
     """
-    columns = [*EVAL_KEYS, "run_id", "start_time", *EVAL_METRICS]
+    columns = [*EVAL_KEYS, *EVAL_LABELS, "run_id", "start_time", *EVAL_METRICS]
     done = _finished(runs, "evaluate")
     if done.empty:
         return pd.DataFrame({c: pd.Series(dtype=float if c in EVAL_METRICS else object) for c in columns})
-    tidy = pd.DataFrame({key: _tag(done, key) for key in EVAL_KEYS})
+    tidy = pd.DataFrame({tag: _tag(done, tag) for tag in (*EVAL_KEYS, *EVAL_LABELS)})
     tidy["experiment"] = tidy["experiment"].replace("", "main")
+    tidy["plan"] = tidy["plan"].replace("", "learned")
     tidy["run_id"] = done["run_id"].astype(str)
     tidy["start_time"] = pd.to_datetime(done["start_time"], utc=True)
     for metric in EVAL_METRICS:
         tidy[metric] = pd.to_numeric(_column(done, f"metrics.{metric}", np.nan), errors="coerce").astype(float)
-    tidy = tidy.sort_values([*EVAL_KEYS, "start_time", "run_id"], kind="mergesort")
-    newest = tidy.drop_duplicates(list(EVAL_KEYS), keep="last")
+    tidy = tidy.sort_values([*keys, "start_time", "run_id"], kind="mergesort")
+    newest = tidy.drop_duplicates(list(keys), keep="last")
     return newest[columns].reset_index(drop=True)
 
 

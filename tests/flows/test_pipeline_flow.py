@@ -71,3 +71,17 @@ def test_cli_run_needs_a_task_or_all():
     args = build_parser().parse_args(["run", "--all", "--profile", "small", "--method", "scripted"])
     assert (args.all, args.task, args.profile, args.method, args.executor) == (True, None, "small", "scripted",
                                                                               "policy")
+
+
+def test_closing_message_names_the_local_report_folder(tmp_path, monkeypatch):
+    from flows.pipeline import where_to_look
+
+    monkeypatch.setenv("PASTA_REPORTS_DIR", str(tmp_path / "local"))
+    local = tmp_path / "local"
+    files = [local / "CutRearrange" / "report.md", local / "CutRearrange" / "fig.png", local / "summary" / "report.md",
+             local / "results.csv"]
+    message = where_to_look([{"report": [str(p) for p in files]}, {"report": [str(p) for p in files[2:]]}])
+    for path in (files[0], files[2], files[3]):
+        assert message.count(f"  {path}\n") == 1  # the summary and results.csv once, though both runs wrote them
+    assert "fig.png" not in message
+    assert f"All reports: {local}  " in message and "pasta report --publish" in message
