@@ -1,4 +1,8 @@
-"""Farthest-point sampling, ball query and PointNet++ against slow references and invariances."""
+"""Farthest-point sampling, ball query and PointNet++ against slow references and invariances.
+
+The encoder evaluates its MLPs factored and reordered (``pasta.models.pointnet._mlp_max``); the plain
+references below apply the same weights the obvious way, and outputs and gradients must agree.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +10,7 @@ import math
 
 import pytest
 import torch
+from torch import nn
 
 from pasta.models import (
     GlobalSetAbstraction,
@@ -15,6 +20,7 @@ from pasta.models import (
     ball_query,
     farthest_point_sample,
 )
+from pasta.models.pointnet import gather_points
 from tests.models.synthetic import tiny_encoder
 
 
@@ -125,3 +131,114 @@ def test_encoder_rejects_wrong_features():
     enc = PointNetPlusPlusEncoder(tiny_encoder(3))
     with pytest.raises(ValueError):
         enc(torch.rand(1, 20, 3), torch.rand(1, 20, 2))
+
+
+def plain_mlp(net: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
+    """ReLU after every linear layer of ``net``, on the last axis of ``x``."""
+    for layer in net:
+        if isinstance(layer, nn.Linear):
+            x = torch.relu(x @ layer.weight.T + layer.bias)
+    return x
+
+
+def plain_set_abstraction(sa: SetAbstraction, x: torch.Tensor, pos: torch.Tensor, start=None):
+    """Group each centre's neighbours, concatenate ``[x_j, pos_j - pos_i]``, MLP, max over the group."""
+    centres = gather_points(pos, farthest_point_sample(pos, math.ceil(sa.ratio * pos.shape[1]), start))
+    neighbours = ball_query(pos, centres, sa.radius, sa.max_neighbours)  # (B, S, K)
+    grouped = []
+    for b in range(pos.shape[0]):
+        relative = pos[b][neighbours[b]] - centres[b].unsqueeze(1)  # (S, K, 3)
+        grouped.append(torch.cat([x[b][neighbours[b]], relative], dim=-1))
+    return plain_mlp(sa.net, torch.stack(grouped)).max(dim=2).values, centres
+
+
+def plain_encoder(enc: PointNetPlusPlusEncoder, points: torch.Tensor, roles: torch.Tensor) -> torch.Tensor:
+    x, pos = roles, points
+    for stage in enc.stages:
+        x, pos = plain_set_abstraction(stage, x, pos)
+    return plain_mlp(enc.global_stage.net, torch.cat([x, pos], dim=-1)).max(dim=1).values
+
+
+def randomise_(module: nn.Module, seed: int) -> nn.Module:
+    """Every parameter drawn from N(0, 0.5^2), so biases weigh as much as weights (torch's start small)."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for param in module.parameters():
+            param.copy_(0.5 * torch.randn(param.shape, generator=gen))
+    return module
+
+
+def outputs_and_gradients(module: nn.Module, forward, seed: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """``forward()``'s output and the gradients of a fixed random linear function of it."""
+    module.zero_grad()
+    out = forward()
+    weights = torch.randn(out.shape, generator=torch.Generator().manual_seed(seed), dtype=out.dtype)
+    (out * weights).sum().backward()
+    return out.detach(), {name: p.grad.clone() for name, p in module.named_parameters()}
+
+
+def clouds(batch: int, n: int, seed: int, dtype: torch.dtype = torch.float64) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points in ``[0.3, 0.7]^3`` and one-hot roles; at these sizes some balls are full and some padded."""
+    gen = torch.Generator().manual_seed(seed)
+    points = 0.3 + 0.4 * torch.rand(batch, n, 3, generator=gen, dtype=dtype)
+    return points, torch.eye(3, dtype=dtype)[torch.randint(3, (batch, n), generator=gen)]
+
+
+@pytest.mark.parametrize("channels", [(16,), (16, 32), (8, 16, 32)])
+def test_set_abstraction_matches_plain_reference(channels):
+    # float64: the gradient of a max jumps where two group members tie, and float32 rounding can pick
+    # the other member of a near tie; in float64 the gaps dwarf the rounding, so agreement is tight.
+    pos, x = clouds(2, 120, seed=5)
+    x = torch.cat([x, torch.rand(2, 120, 1, generator=torch.Generator().manual_seed(6), dtype=x.dtype)], -1)
+    sa = randomise_(SetAbstraction(0.25, 0.15, (4 + 3, *channels), max_neighbours=12).double(), seed=7)
+    start = torch.tensor([3, 0])
+    neighbours = ball_query(pos, sa(x, pos, start)[1], sa.radius, sa.max_neighbours)
+    padded = neighbours[..., -1] == neighbours[..., 0]  # fewer than K neighbours: the first one repeats
+    assert bool(padded.any()) and not bool(padded.all())
+    out, grads = outputs_and_gradients(sa, lambda: sa(x, pos, start)[0], seed=8)
+    ref, ref_grads = outputs_and_gradients(sa, lambda: plain_set_abstraction(sa, x, pos, start)[0], seed=8)
+    torch.testing.assert_close(out, ref, rtol=1e-10, atol=1e-12)
+    assert grads.keys() == ref_grads.keys()
+    for name in grads:
+        torch.testing.assert_close(grads[name], ref_grads[name], rtol=1e-10, atol=1e-12, msg=name)
+
+
+@pytest.mark.parametrize("train_mode", [True, False])
+def test_encoder_matches_plain_reference(train_mode):
+    points, roles = clouds(2, 200, seed=9)
+    enc = randomise_(PointNetPlusPlusEncoder(tiny_encoder(3)).double(), seed=10).train(train_mode)
+    out, grads = outputs_and_gradients(enc, lambda: enc(points, roles), seed=11)
+    ref, ref_grads = outputs_and_gradients(enc, lambda: plain_encoder(enc, points, roles), seed=11)
+    torch.testing.assert_close(out, ref, rtol=1e-10, atol=1e-12)
+    for name in grads:
+        torch.testing.assert_close(grads[name], ref_grads[name], rtol=1e-10, atol=1e-12, msg=name)
+
+
+@pytest.mark.parametrize("train_mode", [True, False])
+def test_default_encoder_matches_plain_reference_in_float32(train_mode):
+    torch.manual_seed(12)
+    points, roles = clouds(2, 400, seed=13, dtype=torch.float32)
+    enc = PointNetPlusPlusEncoder().train(train_mode)
+    with torch.no_grad():
+        out, ref = enc(points, roles), plain_encoder(enc, points, roles)
+    torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5 * float(ref.abs().max()))
+
+
+def test_encoder_parameters_keep_their_checkpoint_names():
+    shapes = {name: tuple(p.shape) for name, p in PointNetPlusPlusEncoder().state_dict().items()}
+    expected = {}
+    for prefix, widths in [
+        ("stages.0", (6, 64, 64, 128)),
+        ("stages.1", (131, 128, 128, 256)),
+        ("global_stage", (259, 256, 128, 512, 1024)),
+    ]:
+        for i, (c_in, c_out) in enumerate(zip(widths[:-1], widths[1:], strict=True)):
+            expected[f"{prefix}.net.{2 * i}.weight"] = (c_out, c_in)
+            expected[f"{prefix}.net.{2 * i}.bias"] = (c_out,)
+    assert shapes == expected
+
+
+def test_fps_restores_the_thread_count():
+    torch.set_num_threads(2)  # the folder's fixture restores its own count afterwards
+    farthest_point_sample(torch.rand(1, 30, 3), 5)
+    assert torch.get_num_threads() == 2
