@@ -1,22 +1,25 @@
-"""One training step of the PointNet++ set policy: this checkout's encoder against the reference one, side by side.
+"""One training step of the set policy, side by side: this checkout's PointNet++ encoder, the reference
+PointNet++ and the compact encoder (one PointNet per cloud, ``policy.encoder: pointnet``).
 
 A step is forward, backward and Adam on one batch at the ``small`` profile's sizes (CutRearrange:
 ``policy_batch_size`` samples of ``observation_points`` observation, ``tool_points`` tool and
-``observation_points`` goal points, ``policy_lr``), with random clouds and the default ``PolicyConfig``.
-The reference is the encoder of ``--reference`` (a git revision; by default the last one before the
-factored set abstraction), imported from git with its own MLP helper and given the same weights through
-``load_state_dict``, so it also checks that checkpoints still load.
+``observation_points`` goal points, ``policy_lr``), with random clouds and the default ``PolicyConfig`` of
+each encoder. The reference is the PointNet++ of ``--reference`` (a git revision; by default the last one
+before the factored set abstraction), imported from git with its own MLP helper and given the same weights
+through ``load_state_dict``, so it also checks that checkpoints still load. A process times at least
+``--steps`` steps and at least ``MIN_TIMED_S`` seconds, so the compact encoder's short steps are timed over
+many.
 
 Each (implementation, repeat) runs in its own process, so peak memory is that implementation's alone;
-the repeats of both are interleaved, so a change in background load hits them alike, and the table shows
-medians. A last process runs both encoders on the same batch and reports how far their outputs and
-parameter gradients are from the reference's in float64 (this checkout's in float64 and float32, the
+the repeats are interleaved, so a change in background load hits them alike, and the table shows
+medians. A last process runs both PointNet++ encoders on the same batch and reports how far their outputs
+and parameter gradients are from the reference's in float64 (this checkout's in float64 and float32, the
 reference's in float32). Prints the load average and the CPU count, and writes JSON to
 ``benchmarks/results/policy_step.json``.
 
     python benchmarks/policy_step.py                 # 3 repeats of 3 timed steps each, 2 torch threads
     python benchmarks/policy_step.py --repeats 5 --threads 1
-    python benchmarks/policy_step.py --reference ''  # this checkout only
+    python benchmarks/policy_step.py --reference ''  # this checkout's encoders only
 """
 
 import argparse
@@ -35,6 +38,8 @@ RESULTS = ROOT / "benchmarks" / "results"
 REFERENCE = "cb9bf91e9471d0fdc88fd96a18ef4d6154920511"  # MLP on the grouped (B, S, K, C) tensor as is
 TASK, PROFILE = "CutRearrange", "small"
 ACTION_DIM = 10  # CutRearrange
+MIN_TIMED_S = 2.0  # a process times steps for at least this long
+LABELS = {"current": "PointNet++ (pointnet2)", "reference": "PointNet++, reference", "compact": "compact (pointnet)"}
 
 
 def peak_rss_mb() -> float:
@@ -72,14 +77,16 @@ def reference_pointnet(rev: str) -> types.ModuleType:
 
 
 def build_policy(implementation: str, rev: str, dtype=None):
-    """A seeded default ``SetPolicy``; for ``reference`` its encoder is ``rev``'s with the same weights."""
+    """A seeded default ``SetPolicy`` (compact encoder for ``compact``); for ``reference`` its encoder is
+    ``rev``'s with the same weights."""
     import torch
 
-    from pasta.models import SetPolicy
+    from pasta.models import PolicyConfig, SetPolicy
 
+    encoder = "pointnet" if implementation == "compact" else "pointnet2"
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(0)
-        policy = SetPolicy(ACTION_DIM)
+        policy = SetPolicy(ACTION_DIM, PolicyConfig(point_encoder=encoder))
     if implementation == "reference":
         encoder = reference_pointnet(rev).PointNetPlusPlusEncoder(policy.config.encoder)
         encoder.load_state_dict(policy.encoder.state_dict())
@@ -100,8 +107,18 @@ def batch(size: dict, dtype=None):
     return clouds, (2 * torch.rand(size["batch"], ACTION_DIM, generator=gen) - 1).to(dtype or torch.float32)
 
 
+def timed_steps(step, steps: int) -> tuple[int, float]:
+    """Run ``step`` at least ``steps`` times and for at least ``MIN_TIMED_S``; ``(steps run, seconds per step)``."""
+    done, start = 0, time.perf_counter()
+    while done < steps or time.perf_counter() - start < MIN_TIMED_S:
+        step()
+        done += 1
+    return done, (time.perf_counter() - start) / done
+
+
 def measure(implementation: str, rev: str, steps: int, threads: int) -> dict:
-    """Seconds per training step (mean of ``steps`` after one warm-up step) and peak RSS of one implementation."""
+    """Seconds per training step (mean over ``timed_steps`` after one warm-up step), parameters and peak RSS of
+    one implementation."""
     import torch
 
     torch.set_num_threads(threads)
@@ -117,13 +134,10 @@ def measure(implementation: str, rev: str, steps: int, threads: int) -> dict:
 
     rss_before = peak_rss_mb()
     step()
-    start = time.perf_counter()
-    for _ in range(steps):
-        step()
-    seconds = (time.perf_counter() - start) / steps
-    return {"implementation": implementation, "threads": threads, "steps": steps, "s_per_step": seconds,
-            "samples_per_s": size["batch"] / seconds, "rss_before_mb": rss_before, "peak_rss_mb": peak_rss_mb(),
-            **size}
+    done, seconds = timed_steps(step, steps)
+    return {"implementation": implementation, "threads": threads, "steps": done, "s_per_step": seconds,
+            "samples_per_s": size["batch"] / seconds, "parameters": sum(p.numel() for p in policy.parameters()),
+            "rss_before_mb": rss_before, "peak_rss_mb": peak_rss_mb(), **size}
 
 
 def relative_gap(a, b) -> float:
@@ -184,21 +198,26 @@ def print_table(payload: dict) -> None:
     rows, size = payload["rows"], payload["rows"][0]
     print(f"\n{payload['cpu_count']} CPUs (os.cpu_count()), {payload['threads']} torch threads; load average "
           f"(1, 5, 15 min) {payload['load_average_start']} at the start, {payload['load_average_end']} at the end; "
-          f"medians of {payload['repeats']} processes x {payload['steps']} timed steps")
+          f"medians of {payload['repeats']} processes, each timing at least {payload['steps']} steps and "
+          f"{MIN_TIMED_S:g} s")
     if max(payload["load_average_start"][0], payload["load_average_end"][0]) > 0.5:
         print("WARNING: other work was running (1-min load average > 0.5). Times are inflated, and unevenly: "
               "chains of small ops on several threads (the reference's farthest-point sampling) stall most, so "
               "the speed-up is not an idle machine's either.")
     print(f"\nSetPolicy training step at {PROFILE} ({TASK}): batch {size['batch']}, {size['obs_points']} + "
           f"{size['tool_points']} + {size['goal_points']} points, Adam lr {size['lr']}\n")
-    print("| encoder | s/step (median) | each process | samples/s | peak RSS MB (before the first step) |")
-    print("|---|---|---|---|---|")
+    print("| encoder | parameters | s/step (median) | each process | samples/s | peak RSS MB (before the first step) |")
+    print("|---|---|---|---|---|---|")
     for r in rows:
-        each = ", ".join(f"{s:.2f}" for s in r["s_per_step_each"])
-        print(f"| {r['implementation']} | {r['s_per_step']:.2f} | {each} | {r['samples_per_s']:.2f} "
-              f"| {r['peak_rss_mb']:.0f} ({r['rss_before_mb']:.0f}) |")
-    if len(rows) == 2:
-        print(f"\nspeed-up: {rows[1]['s_per_step'] / rows[0]['s_per_step']:.2f}x (reference {payload['reference']})")
+        each = ", ".join(f"{s:.3g}" for s in r["s_per_step_each"])
+        print(f"| {LABELS[r['implementation']]} | {r['parameters']:,} | {r['s_per_step']:.3g} | {each} "
+              f"| {r['samples_per_s']:.3g} | {r['peak_rss_mb']:.0f} ({r['rss_before_mb']:.0f}) |")
+    seconds = {r["implementation"]: r["s_per_step"] for r in rows}
+    print(f"\ncompact encoder: {seconds['current'] / seconds['compact']:.1f}x fewer seconds per step than "
+          "this checkout's PointNet++")
+    if payload["agreement"]:
+        print(f"PointNet++ speed-up: {seconds['reference'] / seconds['current']:.2f}x "
+              f"(reference {payload['reference']})")
         print("distance from the reference in float64, relative to the largest magnitude:")
         for name, gap in payload["agreement"].items():
             print(f"  {name}: output {gap['output']:.1e}, parameter gradients at most {gap['gradient']:.1e} "
@@ -208,7 +227,7 @@ def print_table(payload: dict) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3, help="processes per implementation, median reported")
-    parser.add_argument("--steps", type=int, default=3, help="timed steps per process, after one warm-up step")
+    parser.add_argument("--steps", type=int, default=3, help="fewest timed steps per process, after one warm-up step")
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
     parser.add_argument("--reference", default=REFERENCE, help="git revision of the reference encoder ('' for none)")
     parser.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
@@ -220,7 +239,7 @@ def main() -> None:
         return
     if args.repeats < 3 or args.steps < 1:
         parser.error("--repeats must be at least 3 and --steps at least 1")
-    implementations = ["current", "reference"] if args.reference else ["current"]
+    implementations = ["current", "reference", "compact"] if args.reference else ["current", "compact"]
     load_start = load_average()
     runs: dict[str, list[dict]] = {name: [] for name in implementations}
     for _ in range(args.repeats):

@@ -32,7 +32,10 @@ def test_score_bar_counts_results_and_shows_their_mean():
 def test_epoch_status_names_the_loss_and_the_held_out_metric():
     assert epoch_status("vae", {"vae_train_loss": 0.04123, "vae_heldout_chamfer_epoch": 0.0105, "vae_lr": 1e-3}) == (
         "loss 0.04123  held-out Chamfer 0.0105")
-    assert epoch_status("heads", {"train_policy_loss": 1.5, "cost_r2": 0.2}) == "policy loss 1.5"
+    assert epoch_status("heads", {"train_feasibility_loss": 1.5, "cost_r2": 0.2, "policy_mse": 3.0}) == (
+        "feasibility loss 1.5  held-out cost R2 0.2")
+    assert epoch_status("policy", {"policy_train_loss": 0.5, "policy_heldout_mse": 0.25, "policy_lr": 1e-4}) == (
+        "loss 0.5  held-out policy MSE 0.25")
 
 
 def test_epoch_bars_follow_the_epochs_pass_them_on_and_fill_on_finish():
@@ -49,6 +52,15 @@ def test_epoch_bars_follow_the_epochs_pass_them_on_and_fill_on_finish():
         assert (vae.completed, heads.completed) == (4, 3)
     assert seen == [("vae", 2, {"vae_train_loss": 0.5, "vae_heldout_chamfer_epoch": 0.25})]
     assert "CRS heads (pasta)" in text.getvalue()
+
+
+def test_the_policy_bar_counts_gradient_steps():
+    console, _ = quiet_console()
+    with EpochBars({"policy": "CRS policies (pasta)"}, {"policy": 300}, console=console) as bars:
+        bars("policy", 0, {"policy_heldout_mse": 0.9})  # the untrained evaluation
+        assert bars.progress.tasks[0].completed == 0
+        bars("policy", 25, {"policy_heldout_mse": 0.5})
+        assert bars.progress.tasks[0].completed == 25
 
 
 def test_summary_is_one_line_with_the_stage_and_wall_time():

@@ -9,6 +9,7 @@ import mlflow
 import pytest
 
 from pasta import tracking
+from pasta.config import load
 from pasta.report.runs import load_runs
 
 
@@ -79,3 +80,11 @@ def test_a_run_started_earlier_spans_the_work_it_records(store):
     nested = client.get_run(child.info.run_id)
     assert nested.data.tags["mlflow.parentRunId"] == parent.info.run_id
     assert 0 <= nested.info.end_time - nested.info.start_time < 10_000
+
+
+def test_a_run_logs_the_policy_encoder_with_the_other_model_params(store):
+    cfg = load("CutRearrange", "smoke", ["policy.encoder=pointnet"])
+    with tracking.run("CutRearrange", "train", profile="smoke", variant="pasta", seed=0, cfg=cfg) as active:
+        pass
+    params = mlflow.MlflowClient(store).get_run(active.info.run_id).data.params
+    assert params["policy.encoder"] == "pointnet" and params["train.latent_dim"] == str(cfg.train.latent_dim)

@@ -27,6 +27,7 @@ VARIANT_NAMES = (
 DEMO_METHODS = ("gbto", "scripted")  # how demonstrations are made (pasta/data/demos.py)
 TOOL_KINDS = ("box", "knife", "gripper", "rolling_pin")
 PLAN_COSTS = ("learned", "decoded")  # the planner's set cost (PlanConfig.cost)
+POLICY_ENCODERS = ("pointnet2", "pointnet")  # the policies' point encoder (PolicyNetConfig.encoder)
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -209,6 +210,10 @@ class DataConfig(Frozen):
     # 0.13); "rolled" takes the piece's own z-width, so the length along x (the rolling direction)
     # keeps the volume (pasta.data.configurations.flat_width).
     flat_targets: Literal["official", "rolled"] = "official"
+    # Cut planes of the generated targets (CutRearrange, CRS, CRS-Twice): "official" where drawn;
+    # "cell_middle" moved to the middle of their grid cell, the only place a knife cuts cleanly on the
+    # simulator's grid (pasta.data.configurations.knife_plane).
+    cut_planes: Literal["official", "cell_middle"] = "official"
 
 
 class TrainConfig(Frozen):
@@ -230,6 +235,15 @@ class TrainConfig(Frozen):
     lambda_cost: float = Field(default=1.0, ge=0)
     vae_epochs: int = Field(ge=1)
     epochs: int = Field(ge=1)
+    # The policies train in a loop of their own (pasta/train/policy_loop.py), not in the feasibility and
+    # cost epochs: policy_steps gradient steps per skill (batches of policy_batch_size), the learning rate
+    # following policy_lr_schedule from policy_lr, the held-out action MSE measured every
+    # policy_eval_every steps (the best weights are kept) and a skill stopped after policy_patience
+    # evaluations in a row without a new best (None: never early).
+    policy_steps: int = Field(ge=1)
+    policy_lr_schedule: Literal["cosine", "constant"] = "cosine"
+    policy_eval_every: int = Field(ge=1)
+    policy_patience: int | None = Field(default=None, ge=1)
 
 
 class PlanConfig(Frozen):
@@ -246,6 +260,18 @@ class PlanConfig(Frozen):
     # distance between the entities' decoded clouds, on cost_points points each (pasta.plan.decoded_cost).
     cost: Literal[PLAN_COSTS] = "learned"
     cost_points: int = Field(default=64, ge=1)
+
+
+class PolicyNetConfig(Frozen):
+    """The policies' architecture (their sizes: ``pasta.models.PolicyConfig``; docs/models.md).
+
+    ``encoder``: ``pointnet2``, the appendix's PointNet++ over the role-tagged union of the observation, tool
+    and goal clouds; or ``pointnet``, a compact PointNet per cloud, max-pooled and concatenated, about 25x
+    fewer operations per training step. The tool-concat ablation follows the choice; the latent-set policy
+    has no point encoder.
+    """
+
+    encoder: Literal[POLICY_ENCODERS] = "pointnet2"
 
 
 class EvalConfig(Frozen):
@@ -268,6 +294,7 @@ class TaskConfig(Frozen):
     skills: tuple[SkillConfig, ...]
     data: DataConfig
     train: TrainConfig
+    policy: PolicyNetConfig = PolicyNetConfig()
     plan: PlanConfig
     eval: EvalConfig
 

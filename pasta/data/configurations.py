@@ -84,6 +84,7 @@ from pasta.sim.shapes import (
     BoxPiece,
     ScatterPiece,
     SpherePiece,
+    cell_middle,
     floor_height,
     place_distractors,
     sample_pieces,
@@ -100,6 +101,7 @@ __all__ = [
     "evaluation_problem",
     "evaluation_problems",
     "flat_height_range",
+    "knife_plane",
     "floor_shift",
     "generate_skill_problems",
     "oracle_chain",
@@ -441,7 +443,7 @@ def _cut_rearrange_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
     length, width = float(rng.uniform(*CR_LENGTH)), float(rng.uniform(*CR_WIDTH))
     box = BoxPiece(centre=(0.5, floor + 0.5 * DOUGH_HEIGHT, 0.5),
                    half_extents=(0.5 * length, 0.5 * DOUGH_HEIGHT, 0.5 * width))
-    c = float(rng.uniform(*CR_CUT_X))
+    c = knife_plane(cfg, float(rng.uniform(*CR_CUT_X)))
     move_left = bool(rng.random() < 0.5)
     slide = float(rng.uniform(*CR_SLIDE))
     while True:
@@ -473,6 +475,14 @@ def flat_width(cfg: TaskConfig, official: float, piece: float) -> float:
     return official if cfg.data.flat_targets == "official" else piece
 
 
+def knife_plane(cfg: TaskConfig, x: float) -> float:
+    """A generated cut plane: at ``x`` (``data.cut_planes: official``) or in the middle of its grid cell
+    (``cell_middle``). The knife separates the dough cleanly only with its mid-plane there (the scripted
+    cut moves it there too, :mod:`pasta.data.skills.cut`), so a plane elsewhere puts up to half a cell of
+    dough into the other piece of the target."""
+    return x if cfg.data.cut_planes == "official" else cell_middle(x, cfg.sim.n_grid)
+
+
 def _crs_flat(cfg: TaskConfig, rng: np.random.Generator, volume: float, x: float, z: float,
               piece_width: float) -> BoxPiece:
     h = float(rng.uniform(*flat_height_range(cfg, *CRS_FLAT_HEIGHT)))
@@ -483,7 +493,7 @@ def _crs_cut_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
     length, width = float(rng.uniform(*CRS_CUT_LENGTH)), float(rng.uniform(*CRS_WIDTH))
     z = 0.5 + float(rng.uniform(-CRS_DZ, CRS_DZ))
     left_end = CRS_RIGHT_END_X - length
-    c = left_end + float(rng.uniform(*CRS_PIECE_LENGTH))
+    c = knife_plane(cfg, left_end + float(rng.uniform(*CRS_PIECE_LENGTH)))
     return _Chain(
         pieces=[_crs_box(cfg, length, width, left_end + 0.5 * length, z)],
         skills=["cut"], acted=[(0,)],
@@ -513,15 +523,15 @@ def _crs_eval_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
     length, width = float(rng.uniform(*CRS_CUT_LENGTH)), float(rng.uniform(*CRS_WIDTH))
     z = 0.5 + float(rng.uniform(-CRS_DZ, CRS_DZ))
     left_end = CRS_RIGHT_END_X - length
-    piece = float(rng.uniform(*CRS_PIECE_LENGTH))
+    cut_x = knife_plane(cfg, left_end + float(rng.uniform(*CRS_PIECE_LENGTH)))
     xt, zt = float(rng.uniform(*CRS_SPREAD_X)), 0.5 + float(rng.uniform(-CRS_DZ, CRS_DZ))
-    flat = _crs_flat(cfg, rng, piece * DOUGH_HEIGHT * width, xt, zt, width)
+    flat = _crs_flat(cfg, rng, (cut_x - left_end) * DOUGH_HEIGHT * width, xt, zt, width)
     return _Chain(
         pieces=[_crs_box(cfg, length, width, left_end + 0.5 * length, z)],
         skills=["cut", "push", "spread"],
         acted=[(0,), (0,), (0,)],
         transforms=[
-            _cut(0, left_end + piece, CUT_LABEL, True, CRS_SLIDE),
+            _cut(0, cut_x, CUT_LABEL, True, CRS_SLIDE),
             _translate_to(0, x=xt, z=zt),
             _reshape(0, lambda s: flat),
         ],
@@ -535,14 +545,14 @@ def _crs_twice_eval_chain(cfg: TaskConfig, rng: np.random.Generator) -> _Chain:
     length, width = float(rng.uniform(*CRS_TWICE_LENGTH)), float(rng.uniform(*CRS_WIDTH))
     z = 0.5 + float(rng.uniform(-CRS_TWICE_DZ, CRS_TWICE_DZ))
     left_end = CRS_RIGHT_END_X - length
-    first = left_end + float(rng.uniform(*CRS_TWICE_FIRST_CUT))
-    second = left_end + CRS_TWICE_SECOND_CUT
+    first = knife_plane(cfg, left_end + float(rng.uniform(*CRS_TWICE_FIRST_CUT)))
+    second = knife_plane(cfg, left_end + CRS_TWICE_SECOND_CUT)
     while True:
         z1, z2 = 0.5 + rng.uniform(-CRS_TWICE_DZ, CRS_TWICE_DZ, size=2)
         if CRS_FLAT_WIDTH + CRS_TWICE_FLAT_DZ[0] < abs(z1 - z2) < CRS_FLAT_WIDTH + CRS_TWICE_FLAT_DZ[1]:
             break
     x1, x2 = rng.uniform(*CRS_SPREAD_X, size=2)
-    flat_a = _crs_flat(cfg, rng, CRS_TWICE_SECOND_CUT * DOUGH_HEIGHT * width, float(x1), float(z1), width)
+    flat_a = _crs_flat(cfg, rng, (second - left_end) * DOUGH_HEIGHT * width, float(x1), float(z1), width)
     flat_b = _crs_flat(cfg, rng, (first - second) * DOUGH_HEIGHT * width, float(x2), float(z2), width)
     a, b = 0, CUT_LABEL + 1  # A keeps label 0; the first cut makes the rest CUT_LABEL, the second B
     return _Chain(

@@ -1,10 +1,11 @@
-"""Networks of PASTA: entity VAE, set feasibility and cost predictors, PointNet++ policies, variants.
+"""Networks of PASTA: entity VAE, set feasibility and cost predictors, point-cloud policies, variants.
 
 Models see tensors only: points ``(B, N, 3)`` and latent sets ``(B, K, D_z + 3)`` with boolean masks
 ``(B, K)``; they know nothing of the simulator. See ``docs/models.md``.
 """
 
 from pasta.models.checkpoint import Checkpoint, load_checkpoint, restore_models, save_checkpoint
+from pasta.models.cloud_pointnet import CloudPointNet, CloudPointNetConfig
 from pasta.models.cost import CostConfig, CostPredictor, hungarian_assignment, matched_cost
 from pasta.models.feasibility import FeasibilityConfig, SetFeasibilityPredictor
 from pasta.models.feasibility_samples import (
@@ -36,6 +37,8 @@ __all__ = [
     "VARIANTS",
     "VARIANT_SPECS",
     "Checkpoint",
+    "CloudPointNet",
+    "CloudPointNetConfig",
     "CostConfig",
     "CostPredictor",
     "FeasibilityBatch",

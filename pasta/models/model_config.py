@@ -59,6 +59,12 @@ class ModelConfig:
             latent_policy=replace(self.latent_policy, latent_dim=latent_dim),
         )
 
+    def with_policy_encoder(self, name: str) -> ModelConfig:
+        """This config with the point-cloud policies' encoder ``name`` (``pointnet2`` or ``pointnet``; e.g. from
+        the task config's ``policy.encoder``): the set policy's and the tool-concat ablation's."""
+        return replace(self, policy=replace(self.policy, point_encoder=name),
+                       tool_concat_policy=replace(self.tool_concat_policy, point_encoder=name))
+
     def to_dict(self) -> dict[str, Any]:
         """Nested plain dict (tuples stay tuples)."""
         return dataclasses.asdict(self)

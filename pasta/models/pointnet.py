@@ -322,6 +322,10 @@ class PointNetPlusPlusEncoder(nn.Module):
         self.stages = nn.ModuleList(stages)
         self.global_stage = GlobalSetAbstraction((c_in + 3, *config.global_channels))
 
+    @property
+    def out_dim(self) -> int:
+        return self.config.out_dim
+
     def forward(
         self, points: torch.Tensor, features: torch.Tensor, start: int | torch.Tensor | None = None
     ) -> torch.Tensor:

@@ -1,8 +1,13 @@
 """Set point-cloud policy ``pi_k(P^obs, P^tool, P^goal)`` (appendix §1.4, model_spec §4).
 
-The observation, tool and goal clouds are concatenated into one cloud, each point tagged with a one-hot
-role (observation ``[1, 0, 0]``, tool ``[0, 1, 0]``, goal ``[0, 0, 1]``), encoded by the PointNet++ of
-``pasta.models.pointnet`` (1024-d) and mapped to an action by an MLP ``1024 -> 512 -> 256 -> action_dim``.
+The point encoder is chosen by ``PolicyConfig.point_encoder`` (the task config's ``policy.encoder``):
+
+* ``pointnet2`` (the appendix's): the observation, tool and goal clouds are concatenated into one cloud,
+  each point tagged with a one-hot role (observation ``[1, 0, 0]``, tool ``[0, 1, 0]``, goal ``[0, 0, 1]``),
+  encoded by the PointNet++ of ``pasta.models.pointnet`` (1024-d) and mapped to an action by an MLP
+  ``1024 -> 512 -> 256 -> action_dim``;
+* ``pointnet`` (compact): one PointNet per cloud, max-pooled and concatenated
+  (``pasta.models.cloud_pointnet``, 768-d), then ``768 -> 256 -> 256 -> action_dim``.
 
 The action output is **linear** (then multiplied by ``output_scale`` = 1/5, the official "good
 initialisation" trick), not tanh: demonstration actions are clamped to [-1, 1] and many sit exactly on
@@ -14,14 +19,17 @@ Also here: the uniform point noise used in training, and the entity filtering of
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import torch
 from torch import nn
 
+from pasta.config.schema import POLICY_ENCODERS
 from pasta.geometry.distances import chamfer_distance
 from pasta.models import random_draws
+from pasta.models.cloud_pointnet import CloudPointNet, CloudPointNetConfig
 from pasta.models.layers import mlp, orthogonal_init_
 from pasta.models.pointnet import PointNetPlusPlusConfig, PointNetPlusPlusEncoder
 
@@ -29,7 +37,10 @@ __all__ = [
     "FilteredEntities",
     "PolicyConfig",
     "SetPolicy",
+    "check_point_encoder",
+    "encode_clouds",
     "filter_entities",
+    "point_encoder",
     "tag_point_roles",
     "uniform_point_noise",
 ]
@@ -49,6 +60,36 @@ def tag_point_roles(*clouds: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     eye = torch.eye(len(clouds), dtype=clouds[0].dtype, device=clouds[0].device)
     features = [eye[i].expand(c.shape[0], c.shape[1], -1) for i, c in enumerate(clouds)]
     return torch.cat(clouds, dim=1), torch.cat(features, dim=1)
+
+
+def check_point_encoder(name: str) -> None:
+    """Raise ``ValueError`` naming ``name`` and the known encoders unless it is one of ``POLICY_ENCODERS``."""
+    if name not in POLICY_ENCODERS:
+        raise ValueError(f"unknown policy encoder {name!r}; known: {', '.join(POLICY_ENCODERS)}")
+
+
+def point_encoder(name: str, pointnet2: PointNetPlusPlusConfig, pointnet: CloudPointNetConfig,
+                  n_clouds: int) -> PointNetPlusPlusEncoder | CloudPointNet:
+    """The point encoder ``name`` of a policy that reads ``n_clouds`` clouds.
+
+    ``pointnet2``: a PointNet++ over the clouds' union with one one-hot role per cloud (``pointnet2``'s
+    ``in_features`` must be ``n_clouds``); ``pointnet``: one PointNet per cloud. Both have ``out_dim``.
+    """
+    check_point_encoder(name)
+    if name == "pointnet":
+        return CloudPointNet(n_clouds, pointnet)
+    if pointnet2.in_features != n_clouds:
+        raise ValueError(f"a PointNet++ over {n_clouds} role-tagged clouds needs in_features {n_clouds}, "
+                         f"got {pointnet2.in_features}")
+    return PointNetPlusPlusEncoder(pointnet2)
+
+
+def encode_clouds(encoder: PointNetPlusPlusEncoder | CloudPointNet, clouds: Sequence[torch.Tensor]) -> torch.Tensor:
+    """Features ``(B, encoder.out_dim)`` of clouds ``(B, N_i, 3)``: each cloud through its own PointNet, or
+    their role-tagged union through the PointNet++."""
+    if isinstance(encoder, CloudPointNet):
+        return encoder(*clouds)
+    return encoder(*tag_point_roles(*clouds))
 
 
 def uniform_point_noise(points: torch.Tensor, amplitude: float, generator: torch.Generator | None) -> torch.Tensor:
@@ -100,32 +141,44 @@ class PolicyConfig:
     """Set-policy hyper-parameters.
 
     Attributes:
+        point_encoder: ``pointnet2`` (``encoder``, then ``head_channels``) or ``pointnet`` (``pointnet``, then
+            ``pointnet.head_channels``); set from the task config's ``policy.encoder``.
         encoder: the PointNet++ (``in_features`` = 3 roles).
-        head_channels: hidden widths of the action MLP after the encoder (``[512, 256]``).
+        head_channels: hidden widths of the action MLP after the PointNet++ (``[512, 256]``).
+        pointnet: the compact encoder and the widths of its action MLP.
         output_scale: the linear output is multiplied by this (official 1/5).
     """
 
+    point_encoder: str = "pointnet2"
     encoder: PointNetPlusPlusConfig = field(default_factory=PointNetPlusPlusConfig)
     head_channels: tuple[int, ...] = (512, 256)
+    pointnet: CloudPointNetConfig = field(default_factory=CloudPointNetConfig)
     output_scale: float = 0.2
+
+    def __post_init__(self) -> None:
+        check_point_encoder(self.point_encoder)
+
+    @property
+    def action_head_channels(self) -> tuple[int, ...]:
+        """Hidden widths of the action MLP that follows the chosen encoder."""
+        return self.pointnet.head_channels if self.point_encoder == "pointnet" else self.head_channels
 
 
 class SetPolicy(nn.Module):
     """``(obs (B, N_o, 3), tool (B, N_t, 3), goal (B, N_g, 3))`` -> action ``(B, action_dim)``.
 
-    Orthogonal initialisation of the action head (official ``weight_init``); the encoder keeps torch's.
+    Orthogonal initialisation of the action head (official ``weight_init``); the PointNet++ keeps torch's,
+    the compact encoder is orthogonal too.
     """
 
     def __init__(self, action_dim: int, config: PolicyConfig = PolicyConfig()) -> None:
         super().__init__()
-        if config.encoder.in_features != 3:
-            raise ValueError(f"the set policy tags 3 point roles, got encoder in_features {config.encoder.in_features}")
         self.config = config
         self.action_dim = action_dim
-        self.encoder = PointNetPlusPlusEncoder(config.encoder)
-        self.head = mlp((config.encoder.out_dim, *config.head_channels, action_dim), final_activation=False)
+        self.encoder = point_encoder(config.point_encoder, config.encoder, config.pointnet, n_clouds=3)
+        self.head = mlp((self.encoder.out_dim, *config.action_head_channels, action_dim), final_activation=False)
         orthogonal_init_(self.head)
 
     def forward(self, obs_points: torch.Tensor, tool_points: torch.Tensor, goal_points: torch.Tensor) -> torch.Tensor:
-        points, roles = tag_point_roles(obs_points, tool_points, goal_points)
-        return self.head(self.encoder(points, roles)) * self.config.output_scale
+        features = encode_clouds(self.encoder, (obs_points, tool_points, goal_points))
+        return self.head(features) * self.config.output_scale

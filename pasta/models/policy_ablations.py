@@ -2,11 +2,14 @@
 
 * ``ToolConcatPolicy`` ("Tool Concat Policy", official ``PointActorCat``): PointNet++ over the
   observation and goal clouds only (two one-hot roles), the tool *state* encoded by a small MLP and
-  concatenated after the encoder: ``[1024, 16] -> 512 -> 256 -> action_dim``.
+  concatenated after the encoder: ``[1024, 16] -> 512 -> 256 -> action_dim``. With the compact encoder
+  (``point_encoder = "pointnet"``) the two clouds get a PointNet each instead:
+  ``[2 x 256, 16] -> 256 -> 256 -> action_dim``.
 * ``LatentSetPolicy`` ("Shared Encoder Policy", official ``ActorV4``): acts on the VAE latents instead
   of points. As the appendix describes it ("very similar to our Set Feasibility Predictor"), the
   observation and goal sets go through separate per-entity MLPs, are max-pooled, concatenated and mapped
-  to the action; the official ``ActorV4`` pooled both sets together through one MLP. No tool input.
+  to the action; the official ``ActorV4`` pooled both sets together through one MLP. No tool input and no
+  point encoder, so the choice of point encoder does not concern it.
 
 Both outputs are linear; ``ToolConcatPolicy`` is scaled by 1/5 like the set policy.
 """
@@ -18,9 +21,10 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from pasta.models.cloud_pointnet import CloudPointNetConfig
 from pasta.models.layers import SetMaxPool, check_set, mlp, orthogonal_init_
-from pasta.models.pointnet import PointNetPlusPlusConfig, PointNetPlusPlusEncoder
-from pasta.models.policy import tag_point_roles
+from pasta.models.pointnet import PointNetPlusPlusConfig
+from pasta.models.policy import check_point_encoder, encode_clouds, point_encoder
 
 __all__ = ["LatentPolicyConfig", "LatentSetPolicy", "ToolConcatPolicy", "ToolConcatPolicyConfig"]
 
@@ -30,18 +34,31 @@ class ToolConcatPolicyConfig:
     """Tool-concat hyper-parameters (official ``actor_latent_dim`` = 64 for the tool MLP).
 
     Attributes:
+        point_encoder: ``pointnet2`` (``encoder``, then ``head_channels``) or ``pointnet`` (``pointnet``, then
+            ``pointnet.head_channels``), as the set policy's.
         encoder: PointNet++ with ``in_features`` = 2 (observation, goal).
         tool_state_dim: numbers per tool state (8: position, quaternion, gap).
         tool_channels: tool-state MLP widths after the input (``8 -> 64 -> 64 -> 16``).
-        head_channels: hidden widths of the action MLP (``[512, 256]``).
+        head_channels: hidden widths of the action MLP after the PointNet++ (``[512, 256]``).
+        pointnet: the compact encoder and the widths of its action MLP.
         output_scale: factor on the linear output (official 1/5).
     """
 
+    point_encoder: str = "pointnet2"
     encoder: PointNetPlusPlusConfig = field(default_factory=lambda: PointNetPlusPlusConfig(in_features=2))
     tool_state_dim: int = 8
     tool_channels: tuple[int, ...] = (64, 64, 16)
     head_channels: tuple[int, ...] = (512, 256)
+    pointnet: CloudPointNetConfig = field(default_factory=CloudPointNetConfig)
     output_scale: float = 0.2
+
+    def __post_init__(self) -> None:
+        check_point_encoder(self.point_encoder)
+
+    @property
+    def action_head_channels(self) -> tuple[int, ...]:
+        """Hidden widths of the action MLP that follows the chosen encoder."""
+        return self.pointnet.head_channels if self.point_encoder == "pointnet" else self.head_channels
 
 
 class ToolConcatPolicy(nn.Module):
@@ -49,14 +66,12 @@ class ToolConcatPolicy(nn.Module):
 
     def __init__(self, action_dim: int, config: ToolConcatPolicyConfig = ToolConcatPolicyConfig()) -> None:
         super().__init__()
-        if config.encoder.in_features != 2:
-            raise ValueError(f"the tool-concat policy tags 2 point roles, got {config.encoder.in_features}")
         self.config = config
         self.action_dim = action_dim
-        self.encoder = PointNetPlusPlusEncoder(config.encoder)
+        self.encoder = point_encoder(config.point_encoder, config.encoder, config.pointnet, n_clouds=2)
         self.tool_net = mlp((config.tool_state_dim, *config.tool_channels), final_activation=True)
-        width = config.encoder.out_dim + config.tool_channels[-1]
-        self.head = mlp((width, *config.head_channels, action_dim), final_activation=False)
+        width = self.encoder.out_dim + config.tool_channels[-1]
+        self.head = mlp((width, *config.action_head_channels, action_dim), final_activation=False)
         orthogonal_init_(self.tool_net)
         orthogonal_init_(self.head)
 
@@ -66,8 +81,8 @@ class ToolConcatPolicy(nn.Module):
                 f"tool_state must have shape ({obs_points.shape[0]}, {self.config.tool_state_dim}), "
                 f"got {tuple(tool_state.shape)}"
             )
-        points, roles = tag_point_roles(obs_points, goal_points)
-        features = torch.cat([self.encoder(points, roles), self.tool_net(tool_state)], dim=-1)
+        points = encode_clouds(self.encoder, (obs_points, goal_points))
+        features = torch.cat([points, self.tool_net(tool_state)], dim=-1)
         return self.head(features) * self.config.output_scale
 
 

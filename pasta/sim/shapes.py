@@ -39,6 +39,12 @@ def floor_height(sim: SimConfig) -> float:
     return sim.boundary_cells / sim.n_grid
 
 
+def cell_middle(x: float, n_grid: int) -> float:
+    """The middle of the grid cell holding coordinate ``x`` (cells are ``1 / n_grid`` wide)."""
+    dx = 1.0 / n_grid
+    return (math.floor(x / dx) + 0.5) * dx
+
+
 def _as_vec3(value: Sequence[float], what: str) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64).reshape(-1)
     if arr.shape != (3,) or not np.isfinite(arr).all():

@@ -115,8 +115,10 @@ class TrainedModels:
 
 def untrained(cfg: TaskConfig, variant: str, prior: LatentPrior, *, model_config: ModelConfig | None = None,
               seed: int = 0) -> TrainedModels:
-    """Freshly initialised networks for ``cfg``'s skills and action space (the start of training)."""
-    config = (model_config or ModelConfig()).with_latent_dim(cfg.train.latent_dim)
+    """Freshly initialised networks for ``cfg``'s skills and action space (the start of training); ``cfg`` sets
+    the latent size and the policies' point encoder (``policy.encoder``) of ``model_config``."""
+    base = (model_config or ModelConfig()).with_latent_dim(cfg.train.latent_dim)
+    config = base.with_policy_encoder(cfg.policy.encoder)
     spec = variant_spec(variant)
     return TrainedModels(
         task=cfg.task,

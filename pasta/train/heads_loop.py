@@ -1,21 +1,23 @@
-"""Training loop of the policy, feasibility and cost heads (appendix eq. 6).
+"""Training loop of the feasibility and cost heads (appendix eq. 6), then of the policies (``policy_loop``).
 
 Every step takes one batch of transitions per skill and minimises
-``sum_k lambda_pi * L_pi,k + lambda_f * L_f,k + lambda_c * L_c,k`` with one Adam whose parameter groups carry
-Table 3's learning rates (model_spec §6):
+``sum_k lambda_f * L_f,k + lambda_c * L_c,k`` with one Adam whose parameter groups carry Table 3's learning
+rates (model_spec §6):
 
 * ``L_f``: ``weighted_mse`` of the skill's feasibility predictor on its positives (filtered, hindsight
   goals), ``hard_copies`` hard negatives per positive and ``n_random`` random negatives (model_spec §2.5);
   Gaussian latent noise ``sigma_z``, ``sigma_t`` on the positives for variants with ``latent_noise``;
-* ``L_c``: MSE of the shared cost predictor to the true Chamfer distance of entity pairs (model_spec §3.3);
-* ``L_pi``: squared action error summed over action dimensions, averaged over the first
-  ``policy_batch_size`` valid samples, with uniform point noise (or latent noise for a latent policy).
+* ``L_c``: MSE of the shared cost predictor to the true Chamfer distance of entity pairs (model_spec §3.3).
+
+The policy term ``lambda_pi * L_pi`` of eq. 6 touches only the policies, so they train apart, after the
+heads, with a step budget, schedule and early stopping of their own (``train_policies``).
 
 The VAE is frozen: every entity is encoded once (posterior mean) before the first epoch and the heads
 train on these cached latents. An epoch is ``ceil(max_k n_k / feasibility_batch_size)`` steps, each skill
 cycling through its own shuffled transitions. After every epoch the held-out metrics are measured, the
 progress is checkpointed (``save_trained`` with the optimiser state and the history) and ``on_epoch`` is
-called; a rerun resumes after the last checkpointed epoch. The final weights are those of the last epoch.
+called; a rerun resumes after the last checkpointed epoch, then the policies resume from their own
+progress file (``policy_progress_path``). The heads' final weights are those of the last epoch.
 """
 
 from __future__ import annotations
@@ -27,56 +29,62 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch import nn
 
 from pasta.config.schema import TaskConfig
 from pasta.models.checkpoint import load_checkpoint, restore_models
-from pasta.models.feasibility_samples import add_latent_noise, feasibility_batch, weighted_mse
+from pasta.models.feasibility_samples import feasibility_batch, weighted_mse
 from pasta.models.latent_prior import LatentPrior
 from pasta.models.model_config import ModelConfig
-from pasta.models.policy import uniform_point_noise
 from pasta.models.vae import PointCloudVAE
-from pasta.models.variants import VariantSpec, variant_spec
+from pasta.models.variants import variant_spec
 from pasta.train.bundle import TrainedModels, save_trained, untrained
 from pasta.train.datasets import PolicySamples, TransitionSampler, pad_sets
-from pasta.train.metrics import action_mse, r_squared, roc_auc
+from pasta.train.metrics import r_squared, roc_auc
+from pasta.train.policy_loop import (
+    PolicyResult,
+    PolicySettings,
+    evaluate_policies,
+    policy_progress_path,
+    train_policies,
+)
 from pasta.train.progress import EpochCallback, epoch_generators
 
-__all__ = ["HeadsResult", "HeadsSettings", "HeldOut", "encode_entities", "evaluate_heads", "skill_loss", "train_heads"]
+__all__ = ["HeadsResult", "HeadsSettings", "HeldOut", "encode_entities", "evaluate_abstraction", "skill_loss",
+           "train_heads"]
 
 
 @dataclass(frozen=True)
 class HeadsSettings:
-    """Hyper-parameters of head training (Table 3 and model_spec §2-4, §6)."""
+    """Hyper-parameters of head training (Table 3 and model_spec §2-4, §6); ``policy`` those of the policies."""
 
     epochs: int
     feasibility_lr: float
     cost_lr: float
-    policy_lr: float
     feasibility_batch_size: int
     cost_batch_size: int
-    policy_batch_size: int
     sigma_z: float
     sigma_t: float
-    point_noise: float
-    lambda_policy: float = 1.0
+    policy: PolicySettings
     lambda_feasibility: float = 10.0
     lambda_cost: float = 1.0
     hard_copies: int = 10
     n_random: int = 2048
     seed: int = 0
 
+    def __post_init__(self) -> None:
+        if min(self.epochs, self.feasibility_batch_size, self.cost_batch_size) < 1:
+            raise ValueError(f"need epochs and batch sizes >= 1, got {self}")
+
     @classmethod
     def from_config(cls, cfg: TaskConfig, variant: str, seed: int = 0) -> HeadsSettings:
         """Table 3 values of ``cfg``; no latent noise for variants without ``latent_noise``."""
         train, noisy = cfg.train, variant_spec(variant).latent_noise
         return cls(
-            epochs=train.epochs, feasibility_lr=train.feasibility_lr, cost_lr=train.cost_lr, policy_lr=train.policy_lr,
+            epochs=train.epochs, feasibility_lr=train.feasibility_lr, cost_lr=train.cost_lr,
             feasibility_batch_size=train.feasibility_batch_size, cost_batch_size=train.cost_batch_size,
-            policy_batch_size=train.policy_batch_size,
             sigma_z=train.feasibility_sigma_z if noisy else 0.0, sigma_t=train.feasibility_sigma_t if noisy else 0.0,
-            point_noise=train.policy_point_noise, lambda_policy=train.lambda_policy,
-            lambda_feasibility=train.lambda_feasibility, lambda_cost=train.lambda_cost, seed=seed,
+            policy=PolicySettings.from_config(cfg, variant, seed), lambda_feasibility=train.lambda_feasibility,
+            lambda_cost=train.lambda_cost, seed=seed,
         )
 
 
@@ -87,26 +95,6 @@ def encode_entities(vae: PointCloudVAE, clouds: torch.Tensor, device: torch.devi
     with torch.no_grad():
         parts = [vae.encode_entities(clouds[i : i + batch_size].to(device)) for i in range(0, len(clouds), batch_size)]
     return torch.cat(parts)
-
-
-def _policy_forward(policy: nn.Module, spec: VariantSpec, samples: PolicySamples, latents: torch.Tensor,
-                    noise: HeadsSettings | None, generator: torch.Generator | None, latent_dim: int) -> torch.Tensor:
-    """Actions ``(B, A)`` of one skill's policy; ``noise`` given = training-time noise on its inputs."""
-    device = latents.device
-    if spec.policy_on_latents:
-        obs, obs_mask = pad_sets(samples.obs_ids, latents)
-        goal, goal_mask = pad_sets(samples.goal_ids, latents)
-        if noise is not None:
-            obs = add_latent_noise(obs, latent_dim, noise.sigma_z, noise.sigma_t, generator)
-            goal = add_latent_noise(goal, latent_dim, noise.sigma_z, noise.sigma_t, generator)
-        return policy(obs, goal, obs_mask, goal_mask)
-    clouds = [samples.obs_points.to(device), samples.tool_points.to(device), samples.goal_points.to(device)]
-    if noise is not None:
-        clouds = [uniform_point_noise(c, noise.point_noise, generator) for c in clouds]
-    obs, tool, goal = clouds
-    if spec.tool_state_after_encoder:
-        return policy(obs, goal, samples.tool_states.to(device))
-    return policy(obs, tool, goal)
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,15 +132,14 @@ class HeldOut:
                    latents[torch.from_numpy(np.concatenate(cost_b)).to(latents.device)], torch.cat(cost_t))
 
 
-def evaluate_heads(bundle: TrainedModels, held_out: HeldOut, latents: torch.Tensor, *,
-                   hard_copies: int = 10, seed: int = 777) -> dict[str, float]:
-    """Held-out metrics: feasibility ROC-AUC vs random and vs hard negatives, cost R^2, policy MSE and its
-    zero-action baseline (all skills pooled; noise-free inputs; negatives drawn from a fixed seed)."""
-    spec = variant_spec(bundle.variant)
-    device = latents.device
+def evaluate_abstraction(bundle: TrainedModels, held_out: HeldOut, *, hard_copies: int = 10,
+                         seed: int = 777) -> dict[str, float]:
+    """Held-out metrics of the feasibility and cost heads: feasibility ROC-AUC vs random and vs hard negatives
+    (all skills pooled; negatives drawn from a fixed seed) and cost R^2."""
+    device = held_out.cost_a.device
     generator = torch.Generator(device=device)
     generator.manual_seed(seed)
-    pos, hard, rand, predictions, actions = [], [], [], [], []
+    pos, hard, rand = [], [], []
     with torch.no_grad():
         for k, found in enumerate(held_out.positives):
             if found is None:
@@ -165,47 +152,37 @@ def evaluate_heads(bundle: TrainedModels, held_out: HeldOut, latents: torch.Tens
             pos.append(scores[:n])
             hard.append(scores[n : n + hard_copies * n])
             rand.append(scores[n + hard_copies * n :])
-        for k, samples in enumerate(held_out.policy):
-            if samples is None:
-                continue
-            out = _policy_forward(bundle.models["policy"][k], spec, samples, latents, None, None,
-                                  bundle.prior.latent_dim)
-            predictions.append(out.cpu().numpy())
-            actions.append(samples.actions.numpy())
         cost = bundle.cost(held_out.cost_a, held_out.cost_b).cpu().numpy()
     metrics = {"cost_r2": r_squared(cost, held_out.cost_target.numpy())}
     if pos:
         positives = torch.cat(pos).numpy()
         metrics["feasibility_auc_random"] = roc_auc(positives, torch.cat(rand).numpy())
         metrics["feasibility_auc_hard"] = roc_auc(positives, torch.cat(hard).numpy())
-    if predictions:
-        predicted, true = np.concatenate(predictions), np.concatenate(actions)
-        metrics["policy_mse"] = action_mse(predicted, true)
-        metrics["policy_zero_mse"] = action_mse(np.zeros_like(true), true)
     return metrics
 
 
 @dataclass(frozen=True, eq=False)
 class HeadsResult:
-    """The trained bundle (last epoch), its held-out metrics and the per-epoch history."""
+    """The trained bundle (heads of the last epoch, policies' best weights), its held-out metrics, the heads'
+    per-epoch history and the policies' result (steps, curve)."""
 
     bundle: TrainedModels
     metrics: dict[str, float]
     history: list[dict[str, float]]
+    policy: PolicyResult
 
 
 def _optimiser(bundle: TrainedModels, settings: HeadsSettings) -> torch.optim.Adam:
     return torch.optim.Adam([
         {"params": list(bundle.models["feasibility"].parameters()), "lr": settings.feasibility_lr},
         {"params": list(bundle.models["cost"].parameters()), "lr": settings.cost_lr},
-        {"params": list(bundle.models["policy"].parameters()), "lr": settings.policy_lr},
     ])
 
 
-def skill_loss(bundle: TrainedModels, spec: VariantSpec, settings: HeadsSettings, sampler: TransitionSampler,
-                latents: torch.Tensor, k: int, rows: np.ndarray, rng: np.random.Generator,
-                generator: torch.Generator) -> tuple[torch.Tensor, dict[str, float]]:
-    """``lambda_pi * L_pi + lambda_f * L_f + lambda_c * L_c`` of skill ``k`` on the transitions ``rows``."""
+def skill_loss(bundle: TrainedModels, settings: HeadsSettings, sampler: TransitionSampler, latents: torch.Tensor,
+               k: int, rows: np.ndarray, rng: np.random.Generator,
+               generator: torch.Generator) -> tuple[torch.Tensor, dict[str, float]]:
+    """``lambda_f * L_f + lambda_c * L_c`` of skill ``k`` on the transitions ``rows (n, 2)``, and its parts."""
     parts: dict[str, float] = {}
     total = torch.zeros((), device=latents.device)
     found = sampler.feasibility_positives(k, rows[: settings.feasibility_batch_size], rng)
@@ -226,65 +203,32 @@ def skill_loss(bundle: TrainedModels, spec: VariantSpec, settings: HeadsSettings
     loss = (cost - pairs.chamfer.to(latents.device)).square().mean()
     total = total + settings.lambda_cost * loss
     parts["cost_loss"] = loss.item()
-    samples = sampler.policy_samples(k, rows, rng, settings.policy_batch_size)
-    if samples is not None:
-        predicted = _policy_forward(bundle.models["policy"][k], spec, samples, latents, settings, generator,
-                                    bundle.prior.latent_dim)
-        loss = (predicted - samples.actions.to(latents.device)).square().sum(dim=1).mean()
-        total = total + settings.lambda_policy * loss
-        parts["policy_loss"] = loss.item()
     return total, parts
 
 
-def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torch.Tensor,
-                train_sampler: TransitionSampler, held_out: HeldOut, prior: LatentPrior, settings: HeadsSettings,
-                checkpoint_path: str | Path, *, model_config: ModelConfig | None = None,
-                on_epoch: EpochCallback | None = None, device: torch.device | None = None) -> HeadsResult:
-    """Train the heads of ``variant`` on cached entity ``latents (N, E)``; resume from ``checkpoint_path``.
-
-    Args:
-        cfg: the task (skills, action space).
-        variant: one of ``pasta.models.VARIANTS``.
-        vae: the trained, frozen VAE (copied into the bundle).
-        latents: every entity's latent, from ``encode_entities`` (moved to ``device``).
-        train_sampler: transitions of the training trajectories.
-        held_out: fixed held-out samples for the per-epoch metrics.
-        prior: ``P_u`` for the negatives (box of the training entity centres).
-        settings: Table 3 and friends.
-        checkpoint_path: progress file (``save_trained``), rewritten after every epoch.
-        model_config: network sizes (default ``ModelConfig()``).
-        on_epoch: ``on_epoch("heads", epoch, metrics)`` after each epoch's checkpoint.
-        device: where to train (default: where ``latents`` are).
-    """
-    device = device or latents.device
-    latents = latents.to(device)
-    spec = variant_spec(variant)
-    bundle = untrained(cfg, variant, prior, model_config=model_config, seed=settings.seed)
-    bundle.models["vae"].load_state_dict(vae.state_dict())
-    bundle.to(device)
+def _fit_abstraction(bundle: TrainedModels, sampler: TransitionSampler, held_out: HeldOut, latents: torch.Tensor,
+                     settings: HeadsSettings, path: Path,
+                     on_epoch: EpochCallback | None) -> list[dict[str, float]]:
+    """The feasibility and cost epochs, resumed from ``path`` when it holds progress; the per-epoch history."""
+    device = latents.device
     optimiser = _optimiser(bundle, settings)
     history: list[dict[str, float]] = []
     start = 0
-    path = Path(checkpoint_path)
     if path.is_file():
         checkpoint = load_checkpoint(path, device)
         restore_models(bundle.models, checkpoint)
         optimiser.load_state_dict(checkpoint.optimiser_states["heads"])
         history = list(checkpoint.config["extra"]["history"])
         start = checkpoint.epoch
-    counts = [train_sampler.count(k) for k in range(len(cfg.skills))]
-    if max(counts) == 0:
-        raise ValueError(f"no training transitions for any skill of {cfg.task}")
+    counts = [sampler.count(k) for k in range(len(bundle.skill_names))]
     steps = math.ceil(max(counts) / settings.feasibility_batch_size)
     rows_per_step = max(settings.feasibility_batch_size, settings.cost_batch_size)
-    metrics: dict[str, float] = history[-1] if history else {}
     for epoch in range(start, settings.epochs):
         started = time.perf_counter()
         rng, generator = epoch_generators(settings.seed, epoch, device)
         orders = [rng.permutation(n) for n in counts]
-        for module in bundle.models.values():
-            module.train()
-        bundle.models["vae"].eval()
+        bundle.models["feasibility"].train()
+        bundle.models["cost"].train()
         sums: dict[str, list[float]] = {}
         for step in range(steps):
             total = torch.zeros((), device=device)
@@ -292,8 +236,8 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
                 if n == 0:
                     continue
                 chosen = orders[k][(step * rows_per_step + np.arange(rows_per_step)) % n]
-                loss, parts = skill_loss(bundle, spec, settings, train_sampler, latents, k,
-                                          train_sampler.transitions[k][chosen], rng, generator)
+                loss, parts = skill_loss(bundle, settings, sampler, latents, k, sampler.transitions[k][chosen],
+                                         rng, generator)
                 total = total + loss
                 for key, value in parts.items():
                     sums.setdefault(key, []).append(value)
@@ -302,13 +246,53 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
             optimiser.step()
         bundle.eval()
         metrics = {f"train_{key}": float(np.mean(values)) for key, values in sums.items()}
-        metrics.update(evaluate_heads(bundle, held_out, latents, hard_copies=settings.hard_copies))
+        metrics.update(evaluate_abstraction(bundle, held_out, hard_copies=settings.hard_copies))
         metrics["heads_epoch_s"] = time.perf_counter() - started
         history.append(metrics)
         save_trained(path, bundle, epoch=epoch + 1, optimiser_states={"heads": optimiser.state_dict()},
                      extra={"stage": "heads", "history": history, "epochs": settings.epochs})
         if on_epoch is not None:
             on_epoch("heads", epoch, metrics)
+    return history
+
+
+def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torch.Tensor,
+                train_sampler: TransitionSampler, held_out: HeldOut, prior: LatentPrior, settings: HeadsSettings,
+                checkpoint_path: str | Path, *, model_config: ModelConfig | None = None,
+                on_epoch: EpochCallback | None = None, device: torch.device | None = None) -> HeadsResult:
+    """Train the heads of ``variant`` on cached entity ``latents (N, E)``, then its policies; resume from
+    ``checkpoint_path`` (heads) and ``policy_progress_path(checkpoint_path)`` (policies).
+
+    Args:
+        cfg: the task (skills, action space).
+        variant: one of ``pasta.models.VARIANTS``.
+        vae: the trained, frozen VAE (copied into the bundle).
+        latents: every entity's latent, from ``encode_entities`` (moved to ``device``).
+        train_sampler: transitions of the training trajectories.
+        held_out: fixed held-out samples for the metrics and the policies' early stopping.
+        prior: ``P_u`` for the negatives (box of the training entity centres).
+        settings: Table 3 and friends, the policies' budget and schedule.
+        checkpoint_path: the heads' progress file (``save_trained``), rewritten after every epoch.
+        model_config: network sizes (default ``ModelConfig()``).
+        on_epoch: ``on_epoch("heads", epoch, metrics)`` after each epoch's checkpoint, then
+            ``on_epoch("policy", steps, metrics)`` after each policy evaluation (``train_policies``).
+        device: where to train (default: where ``latents`` are).
+
+    Returns:
+        The bundle on the CPU; its metrics: the last epoch's, the policies' pooled held-out MSE with the kept
+        weights (``evaluate_policies``) and each skill's steps (``PolicyResult.metrics``).
+    """
+    device = device or latents.device
+    latents = latents.to(device)
+    if max(train_sampler.count(k) for k in range(len(cfg.skills))) == 0:
+        raise ValueError(f"no training transitions for any skill of {cfg.task}")
+    bundle = untrained(cfg, variant, prior, model_config=model_config, seed=settings.seed)
+    bundle.models["vae"].load_state_dict(vae.state_dict())
+    bundle.to(device).eval()
+    path = Path(checkpoint_path)
+    history = _fit_abstraction(bundle, train_sampler, held_out, latents, settings, path, on_epoch)
+    policy = train_policies(bundle, train_sampler, held_out.policy, latents, settings.policy,
+                            policy_progress_path(path), on_epoch=on_epoch)
     bundle.eval()
-    final = metrics if history else evaluate_heads(bundle, held_out, latents, hard_copies=settings.hard_copies)
-    return HeadsResult(bundle.to("cpu"), final, history)
+    metrics = {**history[-1], **evaluate_policies(bundle, held_out.policy, latents), **policy.metrics()}
+    return HeadsResult(bundle.to("cpu"), metrics, history, policy)

@@ -1,8 +1,8 @@
 """What the training loops share: the epoch callback type, per-epoch seeding and the epoch progress bars.
 
-Each epoch draws from generators seeded by ``(seed, epoch)`` alone (the official reseeds every epoch with
-``(seed + 1) * (epoch + 1)``), so a run resumed from a checkpoint after epoch ``e`` draws exactly what an
-uninterrupted run draws from epoch ``e + 1`` on.
+Each epoch (each round of policy steps) draws from generators seeded by ``(seed, epoch)`` alone (the official
+reseeds every epoch with ``(seed + 1) * (epoch + 1)``), so a run resumed from a checkpoint after epoch ``e``
+draws exactly what an uninterrupted run draws from epoch ``e + 1`` on.
 """
 
 from __future__ import annotations
@@ -15,10 +15,14 @@ from rich.console import Console
 
 from pasta.progress import stage_progress
 
-__all__ = ["EpochBars", "EpochCallback", "epoch_generators", "epoch_status"]
+__all__ = ["STEP_STAGES", "EpochBars", "EpochCallback", "epoch_generators", "epoch_status"]
 
 EpochCallback = Callable[[str, int, dict[str, float]], None]
-"""``on_epoch(stage, epoch, metrics)``: called after each finished (and checkpointed) epoch, ``epoch`` from 0."""
+"""``on_epoch(stage, epoch, metrics)``: called after each finished (and checkpointed) epoch, ``epoch`` from 0;
+for the stages of ``STEP_STAGES``, after each evaluation, ``epoch`` being the gradient steps taken so far."""
+
+STEP_STAGES = frozenset({"policy"})
+"""Stages that count gradient steps instead of epochs (the policies' own loop, ``policy_loop``)."""
 
 
 def epoch_generators(seed: int, epoch: int, device: torch.device) -> tuple[np.random.Generator, torch.Generator]:
@@ -32,8 +36,9 @@ def epoch_generators(seed: int, epoch: int, device: torch.device) -> tuple[np.ra
 # Per stage, the metrics a bar shows: (key in the epoch's metrics, label).
 SHOWN_METRICS: Mapping[str, tuple[tuple[str, str], ...]] = {
     "vae": (("vae_train_loss", "loss"), ("vae_heldout_chamfer_epoch", "held-out Chamfer")),
-    "heads": (("train_policy_loss", "policy loss"), ("policy_mse", "held-out policy MSE"),
-              ("feasibility_auc_hard", "held-out AUC hard")),
+    "heads": (("train_feasibility_loss", "feasibility loss"), ("feasibility_auc_hard", "held-out AUC hard"),
+              ("cost_r2", "held-out cost R2")),
+    "policy": (("policy_train_loss", "loss"), ("policy_heldout_mse", "held-out policy MSE")),
 }
 
 
@@ -45,9 +50,10 @@ def epoch_status(stage: str, metrics: Mapping[str, float]) -> str:
 class EpochBars:
     """An :data:`EpochCallback` that shows one rich progress bar per training stage, then calls ``then``.
 
-    Each bar counts the stage's epochs out of ``totals[stage]`` and shows the latest loss and held-out
-    metric (:func:`epoch_status`) and an ETA. A resumed stage jumps to its epoch at its first callback (the
-    ETA counts only the epochs trained here). Use as a context manager around the training.
+    Each bar counts the stage's epochs (gradient steps for ``STEP_STAGES``) out of ``totals[stage]`` and shows
+    the latest loss and held-out metric (:func:`epoch_status`) and an ETA. A resumed stage jumps to its epoch
+    at its first callback (the ETA counts only the epochs trained here). Use as a context manager around the
+    training.
     """
 
     def __init__(self, labels: Mapping[str, str], totals: Mapping[str, int], then: EpochCallback | None = None,
@@ -66,7 +72,8 @@ class EpochBars:
         self.progress.stop()
 
     def __call__(self, stage: str, epoch: int, metrics: dict[str, float]) -> None:
-        self.progress.update(self.bars[stage], completed=epoch + 1, status=epoch_status(stage, metrics))
+        done = epoch if stage in STEP_STAGES else epoch + 1
+        self.progress.update(self.bars[stage], completed=done, status=epoch_status(stage, metrics))
         if self.then is not None:
             self.then(stage, epoch, metrics)
 

@@ -5,7 +5,8 @@
 * ``vae_stage``: train the VAE once (resuming from its progress file) and keep it as ``vae.pt``; a second
   call finds ``vae.pt`` and loads it, so every variant reuses one VAE per task, profile and representation.
 * ``heads_stage``: encode every entity once with the frozen VAE, build the samplers and the fixed
-  held-out set, and train the heads of one variant (resuming from its progress file).
+  held-out set, and train the feasibility and cost heads, then the policies, of one variant (resuming
+  from their progress files).
 """
 
 from __future__ import annotations

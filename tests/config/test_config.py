@@ -156,6 +156,29 @@ def test_training_values_are_table3(task, profile):
     assert (train.lambda_policy, train.lambda_feasibility, train.lambda_cost) == (1.0, 10.0, 1.0)
 
 
+# The released policy script's 2000 epochs of ceil(max_k n_k / 256) steps (conf/tasks/*.yaml): n_k is 90 % of
+# the skill's Table 1 demos x 49 transitions; ceil(900 x 49 / 256) = 173 for the tasks whose largest skill has
+# 1000 demos, ceil(360 x 49 / 256) = 69 for CRS (400 per skill).
+PAPER_POLICY = {task: (2000 * steps, steps) for task, steps in
+                (("LiftSpread", 173), ("GatherMove", 173), ("CutRearrange", 173), ("CRS", 69), ("CRS-Twice", 69))}
+
+
+@pytest.mark.parametrize("task", TASK_NAMES)
+def test_paper_policy_budget_is_the_official_2000_epochs(task):
+    train = load(task, "paper").train
+    assert (train.policy_steps, train.policy_eval_every) == PAPER_POLICY[task]
+    assert (train.policy_lr_schedule, train.policy_patience) == ("constant", None)  # best kept, no early stop
+
+
+@pytest.mark.parametrize("task", TASK_NAMES)
+def test_small_and_smoke_policy_budgets(task):
+    small, smoke = load(task, "small").train, load(task, "smoke").train
+    assert (small.policy_steps, small.policy_lr_schedule, small.policy_eval_every, small.policy_patience) == (
+        300, "cosine", 25, 4)
+    assert (smoke.policy_steps, smoke.policy_lr_schedule, smoke.policy_eval_every, smoke.policy_patience) == (
+        4, "cosine", 2, 4)
+
+
 @pytest.mark.parametrize("task", TASK_NAMES)
 def test_planning_values_are_table3_at_paper(task):
     plan = load(task, "paper").plan
@@ -355,6 +378,9 @@ def test_unknown_override_key_names_the_valid_keys(override, bad, valid):
         ("tools.knife.friction=-1", "tools.knife.friction", "-1", ">= 0"),
         ("eval.success_threshold=1.2", "eval.success_threshold", "1.2", "< 1"),
         ("scale.data=0", "scale.data", "0", "> 0"),
+        ("train.policy_steps=0", "train.policy_steps", "0", ">= 1"),
+        ("train.policy_eval_every=0", "train.policy_eval_every", "0", ">= 1"),
+        ("train.policy_patience=0", "train.policy_patience", "0", ">= 1"),
     ],
 )
 def test_out_of_range_value_names_key_value_and_constraint(override, key, value, constraint):
@@ -377,6 +403,16 @@ def test_other_invalid_values_are_config_errors():
         load("LiftSpread", "smoke", ["skills.lift.tool=board"])
     with pytest.raises(ConfigError, match="min_gap <= gap <= max_gap"):
         load("CutRearrange", "smoke", ["tools.gripper.gap=0.5"])
+    with pytest.raises(ConfigError, match=r"train\.policy_lr_schedule.*'step'.*'cosine'"):
+        load("CRS", "smoke", ["train.policy_lr_schedule=step"])
+
+
+@pytest.mark.parametrize("profile", PROFILE_NAMES)
+def test_policy_encoder_defaults_to_pointnet2_and_refuses_unknown_names(profile):
+    assert load("CRS", profile).policy.encoder == "pointnet2"
+    assert load("CRS", profile, ["policy.encoder=pointnet"]).policy.encoder == "pointnet"
+    with pytest.raises(ConfigError, match=r"policy\.encoder = 'pointnet3' is not allowed.*'pointnet2' or 'pointnet'"):
+        load("CRS", profile, ["policy.encoder=pointnet3"])
 
 
 @pytest.mark.parametrize(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from functools import cache
 
@@ -431,3 +432,38 @@ def test_split_by_configuration_id():
     assert [p.config_id for p in again[1]] == [p.config_id for p in test]
     other = {tuple(p.config_id for p in split_problems(problems, cfg, seed=s)[1]) for s in range(10)}
     assert len(other) > 1
+
+
+def cut_faces(cfg, config_id: int) -> list[float]:
+    """x of the cut face of the piece that stays put, for every cut of evaluation problem ``config_id``."""
+    chain = oracle_chain(cfg, config_id)
+    faces = []
+    before = evaluation_problem(cfg, config_id).initial.particles
+    for step in chain:
+        if step.skill == "cut":
+            kept = step.acted & np.all(np.isclose(step.subgoal, before, atol=1e-6), axis=1)
+            moving = step.acted & ~kept
+            right_stays = step.subgoal[kept, 0].mean() > step.subgoal[moving, 0].mean()
+            faces.append(float(step.subgoal[kept, 0].min() if right_stays else step.subgoal[kept, 0].max()))
+        before = step.subgoal
+    return faces
+
+
+@pytest.mark.parametrize("task", ["CutRearrange", "CRS", "CRS-Twice"])
+def test_cell_middle_cut_planes_sit_mid_cell_and_the_cut_pieces_keep_their_volume(task):
+    """``data.cut_planes: cell_middle`` (small): every cut plane moves by at most half a grid cell, to the
+    middle of one (the staying piece's cut face lies there), and a flattened CRS piece keeps the volume of
+    the piece actually cut off."""
+    moved = config.load(task, "smoke", ["data.cut_planes=cell_middle"])
+    dx = 1.0 / moved.sim.n_grid
+    for config_id in range(3):
+        for face, official in zip(cut_faces(moved, config_id), cut_faces(cfg_of(task), config_id), strict=True):
+            assert abs(face - (math.floor(official / dx) + 0.5) * dx) < 0.004, (config_id, face, official)
+    if task == "CRS":
+        for problem in generate_skill_problems(moved):
+            if problem.skill == "spread":
+                assert bbox_volume(problem.target) == pytest.approx(
+                    bbox_volume(attended_points(moved, problem)), rel=0.02)
+        chain = oracle_chain(moved, 0)
+        cut_off = chain[0].subgoal[chain[1].acted]
+        assert bbox_volume(chain[2].subgoal[chain[2].acted]) == pytest.approx(bbox_volume(cut_off), rel=0.03)

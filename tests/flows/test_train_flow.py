@@ -16,7 +16,7 @@ def test_train_flow_logs_metrics_figures_and_the_bundle(prefect_server, isolated
     from flows.train import FINAL_METRICS, train
 
     write_dataset(data_dir("CutRearrange", "smoke") / "scripted", n_trajectories=10)
-    # policy_lr 1e-2 (the task's is 1e-4): three epochs then beat the all-zero action (measured 0.62 vs 0.67)
+    # policy_lr 1e-2 (the task's is 1e-4): smoke's 4 policy steps then beat the all-zero action (measured 0.63 vs 0.67)
     overrides = ("train.feasibility_batch_size=32", "train.cost_batch_size=32", "train.policy_batch_size=4",
                  "train.policy_lr=1e-2")
     summary = train("CutRearrange", "smoke", "pasta", overrides=overrides,
@@ -28,16 +28,24 @@ def test_train_flow_logs_metrics_figures_and_the_bundle(prefect_server, isolated
     assert summary["feasibility_auc_random"] > 0.5, summary  # better than chance
     shown = capsys.readouterr().out  # a bar per stage at its last epoch, then the one-line summary
     assert "CutRearrange VAE" in shown and "CutRearrange heads (pasta)" in shown and "held-out policy MSE" in shown
+    assert "CutRearrange policies (pasta)" in shown and "steps cut 4, rearrange 4" in shown
     assert f"train CutRearrange pasta done in {summary['wall_s']:.0f} s: VAE held-out Chamfer" in shown
 
     tracking.configure()
     run = mlflow.get_run(summary["mlflow_run_id"])
     assert run.data.tags["pasta.stage"] == "train" and run.data.tags["pasta.variant"] == "pasta"
     assert run.data.metrics["cost_r2"] == pytest.approx(summary["cost_r2"])
-    history = mlflow.MlflowClient().get_metric_history(run.info.run_id, "train_cost_loss")
+    client = mlflow.MlflowClient()
+    history = client.get_metric_history(run.info.run_id, "train_cost_loss")
     assert [m.step for m in history] == [0, 1, 2]  # smoke: 3 head epochs
+    # smoke: 4 policy steps per skill, evaluated untrained and every 2 steps; the curve's step is the step count
+    # (only cut has held-out samples: the one held-out trajectory of the 10 is a cut)
+    assert run.data.metrics["policy_steps_cut"] == run.data.metrics["policy_steps_rearrange"] == 4
+    curve = client.get_metric_history(run.info.run_id, "policy_heldout_mse_cut")
+    assert [m.step for m in curve] == [0, 2, 4]
+    assert [m.step for m in client.get_metric_history(run.info.run_id, "policy_lr")] == [2, 4]
     artifacts = {a.path for folder in ("figures", "checkpoints")
-                 for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, folder)}
+                 for a in client.list_artifacts(run.info.run_id, folder)}
     assert artifacts == {"figures/latent_space.png", "figures/reconstruction.png", "checkpoints/models.pt"}
 
     bundle = trained_models("CutRearrange", "smoke", "pasta")

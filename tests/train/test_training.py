@@ -8,38 +8,25 @@ import numpy as np
 import pytest
 import torch
 
-from pasta.models import VARIANTS, LatentPrior, PointCloudVAE, variant_spec
-from pasta.train.bundle import DEFAULT_FILTER_EPSILON, untrained
-from pasta.train.datasets import TransitionSampler, vae_clouds
-from pasta.train.entities import PairChamfer
-from pasta.train.heads_loop import HeadsSettings, HeldOut, encode_entities, skill_loss, train_heads
+from pasta.models import VARIANTS, variant_spec
+from pasta.train.bundle import untrained
+from pasta.train.datasets import vae_clouds
+from pasta.train.heads_loop import HeadsSettings, HeldOut, skill_loss, train_heads
+from pasta.train.policy_loop import PolicySettings, policy_loss
 from pasta.train.vae_loop import VAESettings, train_vae
 from tests.models.synthetic import tiny_model_config
+from tests.train.helpers import heads_inputs
 
-SETTINGS = HeadsSettings(epochs=2, feasibility_lr=1e-3, cost_lr=1e-3, policy_lr=1e-3, feasibility_batch_size=16,
-                         cost_batch_size=16, policy_batch_size=4, sigma_z=0.02, sigma_t=0.01, point_noise=0.005,
-                         hard_copies=2, n_random=32)
-
-
-def _setup(cfg, data, variant):
-    config = tiny_model_config()
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(0)
-        vae = PointCloudVAE(config.vae)
-    vae.fit_scale(data.table.clouds)
-    latents = encode_entities(vae, data.table.clouds, torch.device("cpu"))
-    prior = LatentPrior.from_centres(latents[:, 2:], 2)
-    epsilon = DEFAULT_FILTER_EPSILON if variant_spec(variant).filter_entities else 0.0
-    chamfer = PairChamfer(data.table)
-    train = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_train, epsilon, chamfer)
-    test = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_heldout, epsilon, chamfer)
-    return config, vae, latents, prior, train, test
+POLICY = PolicySettings(steps=4, lr=1e-3, batch_size=4, point_noise=0.005, eval_every=2, sigma_z=0.02,
+                        sigma_t=0.01)
+SETTINGS = HeadsSettings(epochs=2, feasibility_lr=1e-3, cost_lr=1e-3, feasibility_batch_size=16, cost_batch_size=16,
+                         sigma_z=0.02, sigma_t=0.01, policy=POLICY, hard_copies=2, n_random=32)
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_a_few_steps_lower_the_loss_of_every_variant(cfg, training_data, scene_data, variant):
     data = scene_data if variant_spec(variant).whole_scene_latent else training_data
-    config, vae, latents, prior, sampler, _ = _setup(cfg, data, variant)
+    config, vae, latents, prior, sampler, _ = heads_inputs(cfg, data, variant)
     bundle = untrained(cfg, variant, prior, model_config=config, seed=0)
     settings = dataclasses.replace(SETTINGS, sigma_z=0.0, sigma_t=0.0) if variant == "no_smoothing_feasibility" \
         else SETTINGS
@@ -48,8 +35,14 @@ def test_a_few_steps_lower_the_loss_of_every_variant(cfg, training_data, scene_d
     def loss() -> torch.Tensor:
         generator = torch.Generator().manual_seed(0)
         rng = np.random.default_rng(0)
-        return sum(skill_loss(bundle, variant_spec(variant), settings, sampler, latents, k, rows[k], rng,
-                              generator)[0] for k in range(2))
+        total = torch.zeros(())
+        for k in range(2):
+            total = total + skill_loss(bundle, settings, sampler, latents, k, rows[k], rng, generator)[0]
+            samples = sampler.policy_samples(k, rows[k], rng, POLICY.batch_size)
+            assert samples is not None
+            total = total + policy_loss(bundle.models["policy"][k], variant_spec(variant), POLICY, samples, latents,
+                                        prior.latent_dim, generator)
+        return total
 
     optimiser = torch.optim.Adam([p for name, m in bundle.models.items() if name != "vae" for p in m.parameters()],
                                  lr=3e-3)
@@ -79,7 +72,7 @@ class Interrupt(Exception):
 
 
 def _without_timings(history):
-    return [{k: v for k, v in h.items() if not k.endswith("_epoch_s")} for h in history]
+    return [{k: v for k, v in h.items() if not k.endswith(("_epoch_s", "_round_s"))} for h in history]
 
 
 def test_vae_resume_continues_from_the_saved_epoch(tmp_path, training_data):
@@ -103,11 +96,12 @@ def test_vae_resume_continues_from_the_saved_epoch(tmp_path, training_data):
         assert torch.equal(value, resumed.vae.state_dict()[key]), key
 
 
-def test_heads_resume_continues_from_the_saved_epoch_and_reports_metrics(tmp_path, cfg, training_data):
-    config, vae, latents, prior, train, test = _setup(cfg, training_data, "pasta")
+def test_heads_and_policies_resume_where_they_stopped_and_report_metrics(tmp_path, cfg, training_data):
+    config, vae, latents, prior, train, test = heads_inputs(cfg, training_data, "pasta")
     held_out = HeldOut.build(test, latents)
-    # enough policy training to beat the all-zero action on the held-out transitions (measured 0.55 vs 0.67)
-    settings = dataclasses.replace(SETTINGS, epochs=8, policy_lr=3e-3)
+    # enough policy training to beat the all-zero action on the held-out transitions (measured 0.47 vs 0.67)
+    settings = dataclasses.replace(SETTINGS, epochs=8, policy=dataclasses.replace(POLICY, steps=24, eval_every=6,
+                                                                                 lr=5e-3))
 
     def fit(path, on_epoch=None):
         return train_heads(cfg, "pasta", vae, latents, train, held_out, prior, settings, path, model_config=config,
@@ -119,21 +113,29 @@ def test_heads_resume_continues_from_the_saved_epoch_and_reports_metrics(tmp_pat
     metrics = straight.metrics
     assert metrics["policy_mse"] < 0.9 * metrics["policy_zero_mse"], metrics
     assert metrics["feasibility_auc_random"] > 0.8, metrics  # measured 1.0; 0.5 is chance
+    assert metrics["policy_steps_cut"] == metrics["policy_steps_rearrange"] == 24, metrics
 
-    def stop(stage, epoch, metrics):
-        assert (stage, epoch) == ("heads", 0)
-        raise Interrupt
+    def stop_at(stage, epoch):
+        def stop(seen_stage, seen_epoch, metrics):
+            if (seen_stage, seen_epoch) == (stage, epoch):
+                raise Interrupt
+        return stop
 
     with pytest.raises(Interrupt):
-        fit(tmp_path / "b.pt", stop)
-    epochs = []
-    resumed = fit(tmp_path / "b.pt", lambda s, e, m: epochs.append(e))
-    assert epochs == list(range(1, settings.epochs))
+        fit(tmp_path / "b.pt", stop_at("heads", 0))
+    with pytest.raises(Interrupt):
+        fit(tmp_path / "b.pt", stop_at("policy", 6))
+    calls = []
+    resumed = fit(tmp_path / "b.pt", lambda s, e, m: calls.append((s, e)))
+    assert calls == [("policy", 12), ("policy", 18), ("policy", 24)]
     for name in ("feasibility", "cost", "policy"):
         a, b = straight.bundle.models[name].state_dict(), resumed.bundle.models[name].state_dict()
         for key in a:
             assert torch.equal(a[key], b[key]), (name, key)
     assert _without_timings(straight.history) == _without_timings(resumed.history)
+    assert [s for s, _ in resumed.policy.curve] == [0, 6, 12, 18, 24]
+    assert _without_timings(m for _, m in straight.policy.curve) == _without_timings(
+        m for _, m in resumed.policy.curve)
 
 
 @pytest.mark.gpu
@@ -147,7 +149,7 @@ def test_vae_and_heads_train_on_cuda_like_on_the_cpu(tmp_path, cfg, training_dat
     on_gpu = train_vae(train, held, tiny_model_config().vae, settings, tmp_path / "gpu.pt", device=cuda)
     gpu_losses = [h["vae_train_loss"] for h in on_gpu.history]
     assert gpu_losses == pytest.approx([h["vae_train_loss"] for h in on_cpu.history], rel=0.05)
-    config, vae, latents, prior, sampler, test = _setup(cfg, data, "pasta")
+    config, vae, latents, prior, sampler, test = heads_inputs(cfg, data, "pasta")
     latents = latents.to(cuda)  # as heads_stage encodes them, on the training device
     torch.cuda.reset_peak_memory_stats()
     heads = train_heads(cfg, "pasta", vae, latents, sampler, HeldOut.build(test, latents), prior, SETTINGS,

@@ -7,14 +7,13 @@ Why the knife goes down slowly and in the middle of a grid cell: see the measure
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from pasta.config.schema import ToolConfig
 from pasta.data.skills.motion import Motion, braking_steps
 from pasta.data.skills.scene import Scene, extent
 from pasta.sim.envs.base import DoughEnv, ToolPose
+from pasta.sim.shapes import cell_middle
 
 KNIFE_CLEARANCE = 0.03  # knife edge above the dough top before a cut (as CutRearrange's default pose)
 CUT_BELOW_BOTTOM = 0.02  # the knife edge goes this far below the dough's bottom
@@ -61,8 +60,7 @@ def cut(env: DoughEnv, m: Motion, scene: Scene) -> None:
     # Cut in the middle of a grid cell: with a grid column on the knife's mid-plane, the direction
     # in which the simulator expels the dough there is arbitrary, and the whole dough drifts
     # (measured at grid 48: cuts on a column lost 0.3-0.75 of the EMD, cuts between gained 0.4-0.6).
-    dx = 1.0 / env.cfg.sim.n_grid
-    cut_x = (math.floor(cut_x / dx) + 0.5) * dx
+    cut_x = cell_middle(cut_x, env.cfg.sim.n_grid)
     safe_y = max(_knife_safe_y(tool, scene), m.pos[1])
     if abs(m.pos[0] - cut_x) > 1e-3 and m.pos[1] - tool.blade_depth < scene.top_all + 0.005:
         m.move(pos=(m.pos[0], safe_y, m.pos[2]))  # lift clear before moving across

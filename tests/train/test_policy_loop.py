@@ -1,0 +1,149 @@
+"""The policies' own loop: the step budget, the learning-rate schedule, early stopping with the best weights
+restored, the logged step counts and an exact resume."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+from collections import Counter
+
+import numpy as np
+import pytest
+import torch
+
+from pasta.models.checkpoint import load_checkpoint
+from pasta.train import policy_loop
+from pasta.train.bundle import untrained
+from pasta.train.policy_loop import PolicySettings, lr_at, train_policies
+from tests.train.helpers import heads_inputs
+
+SETTINGS = PolicySettings(steps=7, lr=3e-3, batch_size=4, point_noise=0.005, eval_every=3)
+
+
+@pytest.fixture()
+def setup(cfg, training_data):
+    """A fresh bundle, the training sampler, the latents and held-out samples for both skills (drawn from the
+    training transitions: the tiny held-out split has no rearrange trajectory)."""
+    config, _, latents, prior, sampler, _ = heads_inputs(cfg, training_data, "pasta")
+    rng = np.random.default_rng(0)
+    held_out = [sampler.policy_samples(k, sampler.transitions[k], rng, 8) for k in range(2)]
+    return untrained(cfg, "pasta", prior, model_config=config, seed=0), sampler, latents, held_out
+
+
+def _states(policies):
+    return [copy.deepcopy(policy.state_dict()) for policy in policies]
+
+
+def _equal(a, b):
+    return all(torch.equal(x[key], y[key]) for x, y in zip(a, b, strict=True) for key in x)
+
+
+def test_cosine_schedule_falls_from_lr_towards_zero_and_constant_stays():
+    cosine = PolicySettings(steps=100, lr=1e-3, batch_size=10, point_noise=0.0, lr_schedule="cosine")
+    values = [lr_at(step, cosine) for step in range(100)]
+    assert values[0] == pytest.approx(1e-3)
+    assert values[50] == pytest.approx(0.5e-3)
+    assert values[99] == pytest.approx(1e-3 * 0.5 * (1 + math.cos(math.pi * 0.99)))
+    assert all(a > b > 0 for a, b in zip(values, values[1:], strict=False))
+    constant = dataclasses.replace(cosine, lr_schedule="constant")
+    assert {lr_at(step, constant) for step in range(100)} == {1e-3}
+
+
+@pytest.mark.parametrize("bad", [dict(steps=0), dict(eval_every=0), dict(patience=0), dict(lr=0.0),
+                                 dict(lr_schedule="step")])
+def test_settings_refuse_bad_values(bad):
+    with pytest.raises(ValueError):
+        dataclasses.replace(SETTINGS, **bad)
+
+
+def test_without_early_stop_every_skill_takes_exactly_the_budget(tmp_path, setup):
+    bundle, sampler, latents, held_out = setup
+    calls = []
+    result = train_policies(bundle, sampler, held_out, latents, SETTINGS, tmp_path / "p.pt",
+                            on_epoch=lambda stage, step, metrics: calls.append((stage, step, metrics)))
+    assert result.steps == {"cut": 7, "rearrange": 7}
+    assert result.metrics()["policy_steps_cut"] == result.metrics()["policy_steps_rearrange"] == 7
+    # Adam counts the updates of every parameter: 7 for each of both policies
+    state = load_checkpoint(tmp_path / "p.pt").optimiser_states["policy"]["state"]
+    assert len(state) == len(list(bundle.models["policy"].parameters()))
+    assert {float(s["step"]) for s in state.values()} == {7.0}
+    # evaluated untrained, then after each round of 3 steps and after the last, shorter one
+    assert [(stage, step) for stage, step, _ in calls] == [("policy", s) for s in (0, 3, 6, 7)]
+    assert [s for s, _ in result.curve] == [0, 3, 6, 7]
+    for step, metrics in result.curve:
+        assert {"policy_heldout_mse_cut", "policy_heldout_mse_rearrange"} <= set(metrics)
+        if step:  # the rate of the round's last step follows the cosine schedule
+            assert metrics["policy_lr"] == pytest.approx(lr_at(step - 1, SETTINGS))
+
+
+def test_learning_rate_of_every_step_follows_the_schedule(tmp_path, setup, monkeypatch):
+    bundle, sampler, latents, held_out = setup
+    seen = []
+    step = torch.optim.Adam.step
+
+    def recording_step(self, *args, **kwargs):
+        seen.append(self.param_groups[0]["lr"])
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.Adam, "step", recording_step)
+    train_policies(bundle, sampler, held_out, latents, SETTINGS, tmp_path / "p.pt")
+    assert seen == pytest.approx([lr_at(s, SETTINGS) for s in range(SETTINGS.steps)])
+
+
+def test_early_stopping_stops_after_patience_and_restores_the_best_weights(tmp_path, setup, monkeypatch):
+    bundle, sampler, latents, held_out = setup
+    # held-out MSE per evaluation of each policy (steps 0, 2, 4, 6, ...): best at step 2, then rising
+    scripted = [1.0, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]
+    evaluations = Counter()
+
+    def fake_mse(policy, *args):
+        evaluations[id(policy)] += 1
+        return scripted[evaluations[id(policy)] - 1]
+
+    monkeypatch.setattr(policy_loop, "heldout_mse", fake_mse)
+    settings = dataclasses.replace(SETTINGS, steps=12, eval_every=2, patience=2)
+    weights = {}
+
+    def remember(stage, step, metrics):
+        weights[step] = _states(bundle.models["policy"])
+
+    result = train_policies(bundle, sampler, held_out, latents, settings, tmp_path / "p.pt", on_epoch=remember)
+    # no better value at steps 4 and 6: both skills stop after 6 of their 12 steps
+    assert result.steps == {"cut": 6, "rearrange": 6}
+    assert result.best_steps == {"cut": 2, "rearrange": 2}
+    assert [s for s, _ in result.curve] == [0, 2, 4, 6]
+    assert [m["policy_heldout_mse_cut"] for _, m in result.curve] == [1.0, 0.5, 0.6, 0.7]
+    final = _states(bundle.models["policy"])
+    assert _equal(final, weights[2])
+    assert not _equal(final, weights[6])
+
+
+def test_resume_after_an_interruption_ends_like_an_uninterrupted_run(tmp_path, cfg, training_data):
+    class Interrupt(Exception):
+        pass
+
+    def stop(stage, step, metrics):
+        if step == 3:
+            raise Interrupt
+
+    def fresh():
+        config, _, latents, prior, sampler, _ = heads_inputs(cfg, training_data, "pasta")
+        held_out = [sampler.policy_samples(k, sampler.transitions[k], np.random.default_rng(0), 8) for k in range(2)]
+        return untrained(cfg, "pasta", prior, model_config=config, seed=0), sampler, latents, held_out
+
+    bundle, sampler, latents, held_out = fresh()
+    straight = train_policies(bundle, sampler, held_out, latents, SETTINGS, tmp_path / "a.pt")
+    resumed_bundle, sampler, latents, held_out = fresh()
+    with pytest.raises(Interrupt):
+        train_policies(resumed_bundle, sampler, held_out, latents, SETTINGS, tmp_path / "b.pt", on_epoch=stop)
+    resumed_bundle, sampler, latents, held_out = fresh()
+    steps = []
+    resumed = train_policies(resumed_bundle, sampler, held_out, latents, SETTINGS, tmp_path / "b.pt",
+                             on_epoch=lambda stage, step, metrics: steps.append(step))
+    assert steps == [6, 7]
+    assert _equal(_states(bundle.models["policy"]), _states(resumed_bundle.models["policy"]))
+    assert (resumed.steps, resumed.best_steps) == (straight.steps, straight.best_steps)
+    untimed = [[(s, {k: v for k, v in m.items() if k != "policy_round_s"}) for s, m in r.curve]
+               for r in (straight, resumed)]
+    assert untimed[0] == untimed[1]
