@@ -19,6 +19,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from pasta.data.storage import atomic_write_bytes
+
 RESULTS = Path(__file__).resolve().parent / "results"
 TASKS = ["LiftSpread", "GatherMove", "CutRearrange", "CRS"]
 
@@ -66,12 +68,8 @@ def gbto_against_warm_start(task: str, profile: str, n_demos: int) -> dict:
 
 
 def write_json(rows: list[dict], name: str) -> Path:
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    target = RESULTS / name
-    tmp = target.with_suffix(".tmp")
-    tmp.write_text(json.dumps(rows, indent=2))
-    tmp.replace(target)
-    return target
+    data = json.dumps(rows, indent=2).encode()
+    return atomic_write_bytes(RESULTS / name, lambda handle: handle.write(data))
 
 
 def main() -> None:

@@ -33,6 +33,8 @@ import time
 import types
 from pathlib import Path
 
+from pasta.data.storage import atomic_write_bytes
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 REFERENCE = "cb9bf91e9471d0fdc88fd96a18ef4d6154920511"  # MLP on the grouped (B, S, K, C) tensor as is
@@ -252,11 +254,8 @@ def main() -> None:
                "load_average_start": load_start, "load_average_end": load_average(),
                "rows": [median_result(runs[name]) for name in implementations], "agreement": agreement,
                "measured_at": time.strftime("%Y-%m-%dT%H:%M:%S")}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    target = RESULTS / "policy_step.json"
-    tmp = target.with_suffix(".tmp")
-    tmp.write_text(json.dumps(payload, indent=2))
-    tmp.replace(target)
+    data = json.dumps(payload, indent=2).encode()
+    target = atomic_write_bytes(RESULTS / "policy_step.json", lambda handle: handle.write(data))
     print_table(payload)
     print(f"\nwrote {target}")
 

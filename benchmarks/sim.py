@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import get_args
 
 from pasta.config.schema import SimConfig
+from pasta.data.storage import atomic_write_bytes
 
 RESULTS = Path(__file__).resolve().parent / "results"
 LAYOUTS_FULL = [(32, 5000), (48, 8000), (64, 30000)]
@@ -250,15 +251,13 @@ def main() -> None:
     task_results = run_repeated([["task", task, str(task_steps), svd] for task in tasks for svd in args.svd],
                                 args.repeats, arch)
     compile_times = measure_cold_compile() if args.compile else None
-    RESULTS.mkdir(parents=True, exist_ok=True)
     payload = {"quick": args.quick, "arch": args.arch, "cpu_count": os.cpu_count(), "svd": args.svd,
                "repeats": args.repeats, "load_average_start": load_start, "load_average_end": load_average(),
                "layouts": layout_results, "tasks": task_results, "compile": compile_times,
                "measured_at": time.strftime("%Y-%m-%dT%H:%M:%S")}
     target = RESULTS / f"sim{'_quick' if args.quick else ''}{'' if args.arch == 'cpu' else '_' + args.arch}.json"
-    tmp = target.with_suffix(".tmp")
-    tmp.write_text(json.dumps(payload, indent=2))
-    tmp.replace(target)
+    data = json.dumps(payload, indent=2).encode()
+    atomic_write_bytes(target, lambda handle: handle.write(data))
     print_table(payload)
     print(f"\nwrote {target}")
 

@@ -16,6 +16,7 @@ from pasta.models import (
     SetAbstractionStage,
     ToolConcatPolicyConfig,
     VAEConfig,
+    uniform_point_noise,
 )
 
 
@@ -24,6 +25,16 @@ def box_clouds(batch: int, n_points: int, generator: torch.Generator) -> torch.T
     centre = 0.3 + 0.4 * torch.rand(batch, 1, 3, generator=generator)
     half = 0.02 + 0.06 * torch.rand(batch, 1, 3, generator=generator)
     return centre + half * (2 * torch.rand(batch, n_points, 3, generator=generator) - 1)
+
+
+def goal_offset_problem(generator: torch.Generator) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """Behaviour cloning toward a goal: noisy (obs, tool, goal) clouds of 8 samples and the actions ``(8, 3)``
+    that move the observation's centre toward the goal's (clamped to [-1, 1])."""
+    obs, tool = box_clouds(8, 48, generator), box_clouds(8, 8, generator)
+    goal = obs + 0.3 * (2 * torch.rand(8, 1, 3, generator=generator) - 1)
+    action = ((goal.mean(1) - obs.mean(1)) / 0.3).clamp(-1, 1)
+    clouds = [uniform_point_noise(x, 0.005, generator) for x in (obs, tool, goal)]
+    return clouds, action
 
 
 def tiny_encoder(in_features: int) -> PointNetPlusPlusConfig:

@@ -15,9 +15,8 @@ from pasta.models import (
     load_checkpoint,
     restore_models,
     save_checkpoint,
-    uniform_point_noise,
 )
-from tests.models.synthetic import box_clouds, tiny_model_config, train
+from tests.models.synthetic import box_clouds, goal_offset_problem, tiny_model_config, train
 
 COMPACT = PolicyConfig(point_encoder="pointnet")
 
@@ -98,11 +97,7 @@ def test_unknown_encoder_is_refused_with_its_name():
 def test_compact_policy_learns_a_goal_offset():
     torch.manual_seed(0)
     policy = SetPolicy(3, PolicyConfig(point_encoder="pointnet"))
-    gen = torch.Generator().manual_seed(3)
-    obs, tool = box_clouds(8, 48, gen), box_clouds(8, 8, gen)
-    goal = obs + 0.3 * (2 * torch.rand(8, 1, 3, generator=gen) - 1)
-    action = ((goal.mean(1) - obs.mean(1)) / 0.3).clamp(-1, 1)  # move towards the goal
-    noisy = [uniform_point_noise(x, 0.005, gen) for x in (obs, tool, goal)]
+    noisy, action = goal_offset_problem(torch.Generator().manual_seed(3))
 
     def loss():
         return (policy(*noisy) - action).square().sum(-1).mean()

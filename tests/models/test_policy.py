@@ -7,7 +7,7 @@ import torch
 
 from pasta.models import PolicyConfig, SetPolicy, filter_entities, uniform_point_noise
 from pasta.models.policy import tag_point_roles
-from tests.models.synthetic import box_clouds, tiny_encoder, train
+from tests.models.synthetic import box_clouds, goal_offset_problem, tiny_encoder, train
 
 
 def test_tag_point_roles():
@@ -52,11 +52,8 @@ def test_filter_entities_removes_pairs_already_matched():
 def test_behaviour_cloning_on_goal_offset():
     torch.manual_seed(0)
     policy = SetPolicy(3, PolicyConfig(encoder=tiny_encoder(3), head_channels=(32,)))
-    gen = torch.Generator().manual_seed(3)
-    obs, tool = box_clouds(8, 48, gen), box_clouds(8, 8, gen)
-    goal = obs + 0.3 * (2 * torch.rand(8, 1, 3, generator=gen) - 1)
-    action = ((goal.mean(1) - obs.mean(1)) / 0.3).clamp(-1, 1)  # move towards the goal
-    noisy = [uniform_point_noise(x, 0.005, gen) for x in (obs, tool, goal)]
+    noisy, action = goal_offset_problem(torch.Generator().manual_seed(3))
+
     def loss():
         return (policy(*noisy) - action).square().sum(-1).mean()
 
