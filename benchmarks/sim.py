@@ -5,12 +5,16 @@ peak memory is per process), ``--repeats`` times (default 3), the repeats of all
 configurations interleaved so that a change in background load hits them alike;
 the table shows each configuration's median. Every measurement is made with each
 3x3 SVD of ``--svd`` (``SimConfig.svd``: Taichi's built-in and the closed-form
-``pasta.sim.svd3``), side by side. Prints a table with the load average and the
-CPU count, and writes JSON to ``benchmarks/results/sim.json``.
+``pasta.sim.svd3``), side by side, and with ``--baseline REV`` also with the
+simulator of a git revision (its ``pasta`` and ``conf`` trees, extracted with
+``git archive`` and put first on the children's ``PYTHONPATH``), so that a change
+is measured against the code before it in the same run. Prints a table with the
+load average and the CPU count, and writes JSON to ``benchmarks/results/sim.json``.
 
     python benchmarks/sim.py            # full set
     python benchmarks/sim.py --quick    # reduced set (one task), a few minutes
     python benchmarks/sim.py --svd fast --repeats 5
+    python benchmarks/sim.py --quick --svd fast --baseline HEAD  # this tree against the last commit
     python benchmarks/sim.py --compile  # also time a cold kernel compile (empty cache)
     python benchmarks/sim.py --arch cuda  # Taichi on a GPU (writes sim_cuda.json)
 """
@@ -31,7 +35,9 @@ from typing import get_args
 from pasta.config.schema import SimConfig
 from pasta.data.storage import atomic_write_bytes
 
-RESULTS = Path(__file__).resolve().parent / "results"
+REPO = Path(__file__).resolve().parent.parent
+RESULTS = REPO / "benchmarks" / "results"
+WORKING_TREE = "working tree"
 LAYOUTS_FULL = [(32, 5000), (48, 8000), (64, 30000)]
 LAYOUTS_QUICK = [(32, 5000), (48, 8000)]
 TASKS = ["LiftSpread", "GatherMove", "CutRearrange", "CRS", "CRS-Twice"]
@@ -157,6 +163,15 @@ def run_child(args: list[str], env: dict | None = None, arch: Sequence[str] = ()
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def extract_revision(revision: str, into: Path) -> dict:
+    """Extract ``pasta`` and ``conf`` of a git revision into ``into``; the environment that imports them."""
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", revision, "pasta", "conf"], capture_output=True,
+                             check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
+    path = os.pathsep.join(p for p in (str(into), os.environ.get("PYTHONPATH", "")) if p)
+    return dict(os.environ, PYTHONPATH=path, PASTA_CONF_DIR=str(into / "conf"))
+
+
 def child_main(args: list[str], arch: str) -> None:
     if args[0] == "layout":
         n_grid, n_particles, steps, grad_steps = map(int, args[1:5])
@@ -174,13 +189,16 @@ def median_result(runs: list[dict]) -> dict:
     return result
 
 
-def run_repeated(configurations: list[list[str]], repeats: int, arch: Sequence[str]) -> list[dict]:
-    """Median results of each child configuration, run ``repeats`` times in rounds over all of them."""
-    runs: list[list[dict]] = [[] for _ in configurations]
+def run_repeated(configurations: list[list[str]], repeats: int, arch: Sequence[str],
+                 codes: dict[str, dict | None]) -> list[dict]:
+    """Median results of each child configuration with each code (label: the children's environment, None
+    for this process's), run ``repeats`` times in rounds over all of them; each result names its ``code``."""
+    jobs = [(args, label) for args in configurations for label in codes]
+    runs: list[list[dict]] = [[] for _ in jobs]
     for _ in range(repeats):
-        for done, args in zip(runs, configurations, strict=True):
-            done.append(run_child(args, arch=arch))
-    return [median_result(r) for r in runs]
+        for done, (args, label) in zip(runs, jobs, strict=True):
+            done.append(run_child(args, env=codes[label], arch=arch))
+    return [dict(median_result(r), code=label) for r, (_, label) in zip(runs, jobs, strict=True)]
 
 
 def svd_choices(text: str) -> list[str]:
@@ -201,25 +219,30 @@ def print_table(payload: dict) -> None:
     print(f"\n{payload['cpu_count']} CPUs (os.cpu_count()); load average (1, 5, 15 min) "
           f"{payload['load_average_start']} at the start, {payload['load_average_end']} at the end; "
           f"medians of {payload['repeats']} runs")
-    print("\n| grid | particles | substeps/step | svd | fwd M particle-substeps/s | fwd ms/substep "
+    print("\n| code | grid | particles | substeps/step | svd | fwd M particle-substeps/s | fwd ms/substep "
           "| fwd+bwd M/s | (fwd+bwd)/fwd | peak RSS MB |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in layouts:
-        print(f"| {r['n_grid']} | {r['n_particles']} | {r['substeps_per_step']} | {r['svd']} | {r['forward_mps']:.2f} "
-              f"| {r['forward_ms_per_substep']:.2f} | {r['forward_backward_mps']:.2f} "
+        print(f"| {r['code']} | {r['n_grid']} | {r['n_particles']} | {r['substeps_per_step']} | {r['svd']} "
+              f"| {r['forward_mps']:.2f} | {r['forward_ms_per_substep']:.2f} | {r['forward_backward_mps']:.2f} "
               f"| {r['forward_backward_over_forward']:.2f} | {r['peak_rss_mb']:.0f} |")
-    by_layout = {(r["n_grid"], r["n_particles"], r["svd"]): r for r in layouts}
-    for (g, n, svd), r in by_layout.items():
-        if svd == "fast" and (g, n, "taichi") in by_layout:
-            base = by_layout[g, n, "taichi"]
-            print(f"grid {g}, {n} particles: svd fast / taichi throughput, forward "
+    by_layout = {(r["code"], r["n_grid"], r["n_particles"], r["svd"]): r for r in layouts}
+    for (code, g, n, svd), r in by_layout.items():
+        if svd == "fast" and (code, g, n, "taichi") in by_layout:
+            base = by_layout[code, g, n, "taichi"]
+            print(f"{code}, grid {g}, {n} particles: svd fast / taichi throughput, forward "
+                  f"{r['forward_mps'] / base['forward_mps']:.2f}x, forward+backward "
+                  f"{r['forward_backward_mps'] / base['forward_backward_mps']:.2f}x")
+        if code == WORKING_TREE and payload["baseline"] and (payload["baseline"], g, n, svd) in by_layout:
+            base = by_layout[payload["baseline"], g, n, svd]
+            print(f"grid {g}, {n} particles, svd {svd}: {WORKING_TREE} / {payload['baseline']} throughput, forward "
                   f"{r['forward_mps'] / base['forward_mps']:.2f}x, forward+backward "
                   f"{r['forward_backward_mps'] / base['forward_backward_mps']:.2f}x")
     if tasks:
-        print("\n| task (small) | grid | particles | svd | s per 50-step episode |")
-        print("|---|---|---|---|---|")
+        print("\n| code | task (small) | grid | particles | svd | s per 50-step episode |")
+        print("|---|---|---|---|---|---|")
         for r in tasks:
-            print(f"| {r['task']} | {r['n_grid']} | {r['n_particles']} | {r['svd']} "
+            print(f"| {r['code']} | {r['task']} | {r['n_grid']} | {r['n_particles']} | {r['svd']} "
                   f"| {r['seconds_per_50_steps']:.1f} |")
     if compile_times:
         print(f"\nkernel compile, grid 32 / 2000 particles, forward + gradient kernels: "
@@ -232,6 +255,8 @@ def main() -> None:
     parser.add_argument("--svd", type=svd_choices, default=list(SVD_CHOICES),
                         help="comma-separated 3x3 SVD methods to compare (default: taichi,fast)")
     parser.add_argument("--repeats", type=int, default=3, help="runs per configuration, median reported (default 3)")
+    parser.add_argument("--baseline", metavar="REV",
+                        help="also measure the simulator of this git revision (e.g. HEAD), side by side")
     parser.add_argument("--compile", action="store_true", help="also time a cold kernel compile")
     parser.add_argument("--arch", default="cpu", choices=["cpu", "cuda"], help="Taichi architecture")
     parser.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
@@ -245,16 +270,20 @@ def main() -> None:
     tasks = TASKS_QUICK if args.quick else TASKS
     steps, grad_steps, task_steps = (5, 2, 10) if args.quick else (20, 5, 50)
     arch = ["--arch", args.arch]
-    load_start = load_average()
-    layout_results = run_repeated([["layout", str(g), str(n), str(steps), str(grad_steps), svd]
-                                   for g, n in layouts for svd in args.svd], args.repeats, arch)
-    task_results = run_repeated([["task", task, str(task_steps), svd] for task in tasks for svd in args.svd],
-                                args.repeats, arch)
+    with tempfile.TemporaryDirectory() as baseline_dir:
+        codes: dict[str, dict | None] = {WORKING_TREE: None}
+        if args.baseline:
+            codes[args.baseline] = extract_revision(args.baseline, Path(baseline_dir))
+        load_start = load_average()
+        layout_results = run_repeated([["layout", str(g), str(n), str(steps), str(grad_steps), svd]
+                                       for g, n in layouts for svd in args.svd], args.repeats, arch, codes)
+        task_results = run_repeated([["task", task, str(task_steps), svd] for task in tasks for svd in args.svd],
+                                    args.repeats, arch, codes)
     compile_times = measure_cold_compile() if args.compile else None
     payload = {"quick": args.quick, "arch": args.arch, "cpu_count": os.cpu_count(), "svd": args.svd,
-               "repeats": args.repeats, "load_average_start": load_start, "load_average_end": load_average(),
-               "layouts": layout_results, "tasks": task_results, "compile": compile_times,
-               "measured_at": time.strftime("%Y-%m-%dT%H:%M:%S")}
+               "baseline": args.baseline, "repeats": args.repeats, "load_average_start": load_start,
+               "load_average_end": load_average(), "layouts": layout_results, "tasks": task_results,
+               "compile": compile_times, "measured_at": time.strftime("%Y-%m-%dT%H:%M:%S")}
     target = RESULTS / f"sim{'_quick' if args.quick else ''}{'' if args.arch == 'cpu' else '_' + args.arch}.json"
     data = json.dumps(payload, indent=2).encode()
     atomic_write_bytes(target, lambda handle: handle.write(data))

@@ -39,6 +39,9 @@ MAX_SPEED = 1e3
 # Soft contact acts where exp(-softness * sdf) exceeds this; the official 0.1 cut-off makes the
 # contact force jump, which finite differences see and adjoints do not.
 SOFT_CONTACT_CUTOFF = 1e-3
+# The ordered P2G scatters fixed chunks of particles, each serially into its own grid, and sums the
+# chunks' grids in chunk order: a fixed summation order whatever the number of threads.
+P2G_CHUNKS = 4
 
 
 @ti.func
@@ -52,22 +55,24 @@ SVD_METHODS = {"taichi": taichi_svd, "fast": fast_svd}
 
 
 @ti.func
-def bspline_weight(fx, i):
-    """Quadratic B-spline weight of stencil node i (0, 1, 2) for fractional grid position fx in [0.5, 1.5)."""
-    return ti.select(i == 0, 0.5 * (1.5 - fx) ** 2, ti.select(i == 1, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2))
+def bspline_weights(fx):
+    """Quadratic B-spline weights (3, 3) of a particle at fx (3,) in [0.5, 1.5) cells from its lowest
+    stencil node: entry [i, d] for offset i along axis d."""
+    return ti.Matrix.rows([0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2])
 
 
 @ti.func
-def bspline_slope(fx, i):
-    """d(bspline_weight)/d(fx)."""
-    return ti.select(i == 0, fx - 1.5, ti.select(i == 1, -2.0 * (fx - 1.0), fx - 0.5))
+def bspline_slopes(fx):
+    """d(bspline_weights)/d(fx), (3, 3), laid out as :func:`bspline_weights`."""
+    return ti.Matrix.rows([fx - 1.5, -2.0 * (fx - 1.0), fx - 0.5])
 
 
 @ti.func
-def stencil_weight_and_gradient(fx, i, j, k, inv_dx):
-    """Weight of node (i, j, k) and its gradient with respect to the particle position (world units)."""
-    wx, wy, wz = bspline_weight(fx[0], i), bspline_weight(fx[1], j), bspline_weight(fx[2], k)
-    gx, gy, gz = bspline_slope(fx[0], i), bspline_slope(fx[1], j), bspline_slope(fx[2], k)
+def node_weight_and_gradient(w, slope, i: ti.template(), j: ti.template(), k: ti.template(), inv_dx):
+    """Weight of stencil node (i, j, k) and its gradient (3,) with respect to the particle position (world
+    units), from :func:`bspline_weights` ``w`` and :func:`bspline_slopes` ``slope``."""
+    wx, wy, wz = w[i, 0], w[j, 1], w[k, 2]
+    gx, gy, gz = slope[i, 0], slope[j, 1], slope[k, 2]
     return wx * wy * wz, inv_dx * ti.Vector([gx * wy * wz, wx * gy * wz, wx * wy * gz])
 
 
@@ -151,10 +156,20 @@ class MPMSimulator:
         self.U = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
         self.sig = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
         self.V = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
-        self.affine = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
+        self.affine = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
         self.grid_m = ti.field(ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_in = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_out = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
+        # P2G's per-chunk grids: momentum (0:3) and mass (3) of chunk c at node (i, j, k), zero between
+        # kernels (G2P's adjoint passes the grid velocity adjoints through them too); the box of stencil
+        # nodes of each chunk's particles (lowest and highest corner, inclusive) and of all particles
+        # (``active_lo``, ``active_hi``): the grid loops visit only that box.
+        self.p2g_chunks = P2G_CHUNKS if self.serial_p2g else 1
+        self.grid_part = ti.Vector.field(4, ti.f32, shape=(self.p2g_chunks, g, g, g))
+        self.chunk_lo = ti.Vector.field(3, ti.i32, shape=self.p2g_chunks)
+        self.chunk_hi = ti.Vector.field(3, ti.i32, shape=self.p2g_chunks)
+        self.active_lo = ti.Vector.field(3, ti.i32, shape=())
+        self.active_hi = ti.Vector.field(3, ti.i32, shape=())
 
         self.tool_pos = ti.Vector.field(3, ti.f32, shape=(frames, n_tools), needs_grad=grad)
         self.tool_rot = ti.Vector.field(4, ti.f32, shape=(frames, n_tools), needs_grad=grad)
@@ -265,17 +280,6 @@ class MPMSimulator:
 
     # ------------------------------------------------------------------ kernels
     @ti.kernel
-    def clear_grid(self):
-        for cell in ti.grouped(self.grid_m):
-            self.grid_m[cell] = 0.0
-            self.grid_v_in[cell] = ti.Vector.zero(ti.f32, 3)
-            self.grid_v_out[cell] = ti.Vector.zero(ti.f32, 3)
-            if ti.static(self.differentiable):
-                self.grid_m.grad[cell] = 0.0
-                self.grid_v_in.grad[cell] = ti.Vector.zero(ti.f32, 3)
-                self.grid_v_out.grad[cell] = ti.Vector.zero(ti.f32, 3)
-
-    @ti.kernel
     def clear_particle_temporaries_grad(self):
         for p in range(self.n):
             self.F_trial.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
@@ -285,19 +289,17 @@ class MPMSimulator:
             self.V.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
             self.affine.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
 
+    # compute_trial_F, compute_stress and tool_kinematics run only through their Taichi adjoints (.grad):
+    # the substep itself computes the same inside advance.
     @ti.kernel
     def compute_trial_F(self, f: ti.i32):
         for p in range(self.n):
             self.F_trial[p] = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
 
     @ti.kernel
-    def svd(self, f: ti.i32):
-        for p in range(self.n):
-            self.U[f, p], self.sig[f, p], self.V[f, p] = self.decompose(self.F_trial[p])
-
-    @ti.kernel
     def svd_grad(self, f: ti.i32):
-        """Adjoint of ``svd``: F_trial.grad from U.grad, sig.grad and V.grad.
+        """Adjoint of the SVD of the trial F (kept by :meth:`substep_recorded`): F_trial.grad from U.grad,
+        sig.grad and V.grad.
 
         Uses the closed form for the SVD's derivative, with the gaps between
         squared singular values kept at least ``SVD_GAP_FLOOR`` away from zero.
@@ -326,63 +328,170 @@ class MPMSimulator:
 
     @ti.func
     def stress_for(self, f, p, U, sig, V):
-        """Write the post-plastic F to frame f + 1 and the APIC affine momentum matrix of particle p."""
+        """Write the post-plastic F of particle p to frame f + 1; return its APIC affine momentum matrix (3, 3)."""
         F_new, stress = self.constitutive(U, sig, V)
         self.F[f + 1, p] = F_new
-        self.affine[f, p] = (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + (
+        return (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + (
             self.particle_mass() * self.C[f, p]
         )
 
     @ti.kernel
     def compute_stress(self, f: ti.i32):
         for p in range(self.n):
-            self.stress_for(f, p, self.U[f, p], self.sig[f, p], self.V[f, p])
+            self.affine[f, p] = self.stress_for(f, p, self.U[f, p], self.sig[f, p], self.V[f, p])
 
-    @ti.kernel
-    def compute_stress_fused(self, f: ti.i32):
-        """Forward-only: trial F, SVD and stress in one pass over the particles."""
-        for p in range(self.n):
-            F_trial = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
-            U, sig, V = self.decompose(F_trial)
-            self.stress_for(f, p, U, sig, V)
+    @ti.func
+    def fresh_affine(self, f, p, record: ti.template()):
+        """Trial F, SVD and stress of particle p in one go: its affine matrix (3, 3).
+
+        With ``record``, keeps the SVD and the affine matrix in frame f for the adjoint pass.
+        """
+        F_trial = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
+        U, sig, V = self.decompose(F_trial)
+        affine = self.stress_for(f, p, U, sig, V)
+        if ti.static(record):
+            self.U[f, p], self.sig[f, p], self.V[f, p] = U, sig, V
+            self.affine[f, p] = affine
+        return affine
+
+    @ti.func
+    def stencil(self, x):
+        """The quadratic B-spline stencil of a particle at ``x`` (3,).
+
+        Returns its lowest node ``base`` (3,) int, its position relative to that node in cells
+        ``fx`` (3,) in [0.5, 1.5), and the weights ``w`` (3, 3): ``w[i, d]`` of offset i along axis d.
+        """
+        Xp = x * self.inv_dx
+        base = ti.cast(Xp - 0.5, ti.i32)
+        fx = Xp - ti.cast(base, ti.f32)
+        return base, fx, bspline_weights(fx)
+
+    @ti.func
+    def scatter(self, c, f, p, affine):
+        """Add particle p's mass and APIC momentum to chunk c's grid; return its stencil's lowest node (3,)."""
+        base, fx, w = self.stencil(self.x[f, p])
+        p_mass = self.particle_mass()
+        momentum = p_mass * self.v[f, p]
+        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+            offset = ti.Vector([i, j, k])
+            dpos = (ti.cast(offset, ti.f32) - fx) * self.dx
+            weight = w[i, 0] * w[j, 1] * w[k, 2]
+            added = weight * (momentum + affine @ dpos)
+            self.add_to_chunk(c, base + offset, ti.Vector([added[0], added[1], added[2], weight * p_mass]))
+        return base
+
+    @ti.func
+    def add_to_chunk(self, c, node, value):
+        """``grid_part[c, node] += value`` (4,): a plain add when ordered (one thread per chunk), else atomic."""
+        if ti.static(self.serial_p2g):
+            self.grid_part[c, node] = self.grid_part[c, node] + value
+        else:
+            self.grid_part[c, node] += value
+
+    @ti.func
+    def chunk_bounds(self, c):
+        """The particles of chunk c (ordered P2G): indices from ``c n / K`` up to ``(c + 1) n / K``, excluded."""
+        return (c * self.n) // self.p2g_chunks, ((c + 1) * self.n) // self.p2g_chunks
+
+    @ti.func
+    def particles_to_chunks(self, f, fused: ti.template(), record: ti.template()):
+        """P2G into the chunks' grids, and each chunk's box of stencil nodes.
+
+        Ordered (``layout.serial_p2g``): chunk c holds particles ``[c n / K, (c + 1) n / K)`` of the
+        K = ``P2G_CHUNKS`` chunks and scatters them serially into its own grid, the chunks in parallel:
+        bit-reproducible and free of float atomics. Otherwise one grid and atomic adds in a parallel
+        loop over the particles (a GPU's only fast way). The affine matrices come from
+        :meth:`fresh_affine` (which keeps them with ``record``) when ``fused``, else from ``self.affine[f]``.
+        """
+        if ti.static(self.serial_p2g):
+            for c in range(self.p2g_chunks):
+                lo = ti.Vector([self.n_grid] * 3)
+                hi = ti.Vector([-1] * 3)
+                begin, end = self.chunk_bounds(c)
+                for p in range(begin, end):
+                    affine = ti.Matrix.zero(ti.f32, 3, 3)
+                    if ti.static(fused):
+                        affine = self.fresh_affine(f, p, record)
+                    else:
+                        affine = self.affine[f, p]
+                    base = self.scatter(c, f, p, affine)
+                    lo = ti.min(lo, base)
+                    hi = ti.max(hi, base + 2)
+                self.chunk_lo[c] = lo
+                self.chunk_hi[c] = hi
+        else:
+            for p in range(self.n):
+                affine = ti.Matrix.zero(ti.f32, 3, 3)
+                if ti.static(fused):
+                    affine = self.fresh_affine(f, p, record)
+                else:
+                    affine = self.affine[f, p]
+                self.scatter(0, f, p, affine)
+
+    @ti.func
+    def find_active_box(self):
+        """``active_lo``, ``active_hi``: the box of every stencil node (inclusive; the whole grid when atomic)."""
+        lo = ti.Vector([0] * 3)
+        hi = ti.Vector([self.n_grid - 1] * 3)
+        if ti.static(self.serial_p2g):
+            lo = ti.Vector([self.n_grid - 1] * 3)
+            hi = ti.Vector([0] * 3)
+            for c in ti.static(range(self.p2g_chunks)):
+                lo = ti.min(lo, self.chunk_lo[c])
+                hi = ti.max(hi, self.chunk_hi[c])
+            lo = ti.max(lo, 0)
+            hi = ti.min(hi, self.n_grid - 1)
+        self.active_lo[None] = lo
+        self.active_hi[None] = hi
+
+    @ti.func
+    def gather_chunks(self, cell):
+        """The chunks' grids summed in chunk order at ``cell``: momentum (0:3) and mass (3); leaves them zero."""
+        total = ti.Vector.zero(ti.f32, 4)
+        for c in ti.static(range(self.p2g_chunks)):
+            total += self.grid_part[c, cell]
+            self.grid_part[c, cell] = ti.Vector.zero(ti.f32, 4)
+        return total
 
     @ti.kernel
     def p2g(self, f: ti.i32):
-        """Scatter mass and momentum to the grid: serially (no float atomics, bit-reproducible) or, with
-        ``layout.serial_p2g`` False, in parallel with atomic adds (a GPU's only fast way)."""
-        ti.loop_config(serialize=self.serial_p2g)
-        for p in range(self.n):
-            Xp = self.x[f, p] * self.inv_dx
-            base = ti.cast(Xp - 0.5, ti.i32)
-            fx = Xp - ti.cast(base, ti.f32)
-            p_mass = self.particle_mass()
-            momentum = p_mass * self.v[f, p]
-            affine = self.affine[f, p]
-            for i, j, k in ti.ndrange(3, 3, 3):
-                offset = ti.Vector([i, j, k])
-                dpos = (ti.cast(offset, ti.f32) - fx) * self.dx
-                weight = bspline_weight(fx[0], i) * bspline_weight(fx[1], j) * bspline_weight(fx[2], k)
-                self.grid_v_in[base + offset] += weight * (momentum + affine @ dpos)
-                self.grid_m[base + offset] += weight * p_mass
+        """Scatter mass and momentum (the stored affine matrices of frame f) into grid_m and grid_v_in.
+
+        Sets every node of the active box: mass and momentum, and zero ``grid_v_out`` and, when
+        differentiable, zero adjoints of the three grid fields. The grid kernels of the adjoint pass
+        visit only that box.
+        """
+        self.particles_to_chunks(f, False, False)
+        for _ in range(1):
+            self.find_active_box()
+        lo, hi = ti.static(self.active_lo, self.active_hi)
+        for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
+            node = self.gather_chunks(cell)
+            self.grid_m[cell] = node[3]
+            self.grid_v_in[cell] = ti.Vector([node[0], node[1], node[2]])
+            self.grid_v_out[cell] = ti.Vector.zero(ti.f32, 3)
+            if ti.static(self.differentiable):
+                self.grid_m.grad[cell] = 0.0
+                self.grid_v_in.grad[cell] = ti.Vector.zero(ti.f32, 3)
+                self.grid_v_out.grad[cell] = ti.Vector.zero(ti.f32, 3)
 
     @ti.kernel
     def p2g_adjoint(self, f: ti.i32):
         """Hand-written adjoint of ``p2g``: grid adjoints to x[f], v[f] and the affine matrix."""
         for p in range(self.n):
-            Xp = self.x[f, p] * self.inv_dx
-            base = ti.cast(Xp - 0.5, ti.i32)
-            fx = Xp - ti.cast(base, ti.f32)
+            base, fx, w = self.stencil(self.x[f, p])
+            slope = bspline_slopes(fx)
             p_mass = self.particle_mass()
             momentum = p_mass * self.v[f, p]
             affine = self.affine[f, p]
             g_momentum = ti.Vector.zero(ti.f32, 3)
             g_affine = ti.Matrix.zero(ti.f32, 3, 3)
             g_x = ti.Vector.zero(ti.f32, 3)
-            for i, j, k in ti.ndrange(3, 3, 3):
+            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
                 offset = ti.Vector([i, j, k])
                 node = base + offset
                 dpos = (ti.cast(offset, ti.f32) - fx) * self.dx
-                weight, d_weight = stencil_weight_and_gradient(fx, i, j, k, self.inv_dx)
+                weight, d_weight = node_weight_and_gradient(w, slope, i, j, k, self.inv_dx)
                 g_v = self.grid_v_in.grad[node]
                 g_m = self.grid_m.grad[node]
                 contribution = momentum + affine @ dpos
@@ -397,13 +506,17 @@ class MPMSimulator:
     def tool_kinematics(self, f: ti.i32):
         """Advance every tool's pose from frame f to f + 1 under the current action."""
         for _ in range(1):
-            for k in ti.static(range(self.n_tools)):
-                if ti.static(self.static_tools[k]):
-                    self.tool_pos[f + 1, k] = self.tool_pos[f, k]
-                    self.tool_rot[f + 1, k] = self.tool_rot[f, k]
-                    self.tool_gap[f + 1, k] = self.tool_gap[f, k]
-                else:
-                    self.advance_tool(f, k)
+            self.move_tools(f)
+
+    @ti.func
+    def move_tools(self, f):
+        for k in ti.static(range(self.n_tools)):
+            if ti.static(self.static_tools[k]):
+                self.tool_pos[f + 1, k] = self.tool_pos[f, k]
+                self.tool_rot[f + 1, k] = self.tool_rot[f, k]
+                self.tool_gap[f + 1, k] = self.tool_gap[f, k]
+            else:
+                self.advance_tool(f, k)
 
     @ti.func
     def advance_tool(self, f, k: ti.template()):
@@ -530,73 +643,122 @@ class MPMSimulator:
         projected = v_tool + rel * (1.0 - influence) + tangential * influence
         return ti.select(in_contact, projected, v)
 
-    @ti.kernel
-    def grid_op(self, f: ti.i32):
-        for cell in ti.grouped(self.grid_m):
-            m = self.grid_m[cell]
-            if m > 1e-12:
-                v = self.grid_v_in[cell] / m + self.dt * self.gravity[None]
-                node = ti.cast(cell, ti.f32) * self.dx
-                for k in ti.static(range(self.n_tools)):
-                    v = self.collide(f, k, 0, node, v)
-                    if ti.static(self.tool_kinds[k] == "gripper"):
-                        v = self.collide(f, k, 1, node, v)
-                bound = self.boundary_cells
-                mu_g = self.ground_friction[None]
-                t_norm = ti.sqrt(v[0] * v[0] + v[2] * v[2] + 1e-20)
-                scale = ti.select(mu_g >= 10.0, 0.0, ti.max(1.0 + mu_g * v[1] / t_norm, 0.0))
-                on_ground = cell[1] < bound and v[1] < 0.0
-                v = ti.select(on_ground, ti.Vector([v[0] * scale, 0.0, v[2] * scale]), v)
-                for d in ti.static(range(3)):
-                    outward_low = cell[d] < bound and v[d] < 0.0
-                    outward_high = cell[d] > self.n_grid - bound and v[d] > 0.0
-                    v[d] = ti.select(outward_low or outward_high, 0.0, v[d])
-                self.grid_v_out[cell] = v
+    @ti.func
+    def node_velocity(self, f, cell, m, momentum):
+        """Velocity (3,) after the substep of a grid node with mass ``m`` > 0 and ``momentum`` (3,): gravity,
+        the tools, the ground and the walls."""
+        v = momentum / m + self.dt * self.gravity[None]
+        node = ti.cast(cell, ti.f32) * self.dx
+        for k in ti.static(range(self.n_tools)):
+            v = self.collide(f, k, 0, node, v)
+            if ti.static(self.tool_kinds[k] == "gripper"):
+                v = self.collide(f, k, 1, node, v)
+        bound = self.boundary_cells
+        mu_g = self.ground_friction[None]
+        t_norm = ti.sqrt(v[0] * v[0] + v[2] * v[2] + 1e-20)
+        scale = ti.select(mu_g >= 10.0, 0.0, ti.max(1.0 + mu_g * v[1] / t_norm, 0.0))
+        on_ground = cell[1] < bound and v[1] < 0.0
+        v = ti.select(on_ground, ti.Vector([v[0] * scale, 0.0, v[2] * scale]), v)
+        for d in ti.static(range(3)):
+            outward_low = cell[d] < bound and v[d] < 0.0
+            outward_high = cell[d] > self.n_grid - bound and v[d] > 0.0
+            v[d] = ti.select(outward_low or outward_high, 0.0, v[d])
+        return v
 
     @ti.kernel
-    def g2p(self, f: ti.i32):
+    def grid_op(self, f: ti.i32):
+        """The grid update of the adjoint pass, on the active box that :meth:`p2g` set."""
+        # The box's bounds are read in the loop statement: Taichi's autodiff refuses statements before a loop.
+        lo, hi = ti.static(self.active_lo, self.active_hi)
+        for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
+            m = self.grid_m[cell]
+            if m > 1e-12:
+                self.grid_v_out[cell] = self.node_velocity(f, cell, m, self.grid_v_in[cell])
+
+    @ti.func
+    def grid_to_particle(self, f, p):
+        """G2P of particle p: its velocity, affine velocity C and position at frame f + 1."""
+        base, fx, w = self.stencil(self.x[f, p])
+        new_v = ti.Vector.zero(ti.f32, 3)
+        new_C = ti.Matrix.zero(ti.f32, 3, 3)
+        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+            offset = ti.Vector([i, j, k])
+            dpos = ti.cast(offset, ti.f32) - fx
+            g_v = self.grid_v_out[base + offset]
+            weight = w[i, 0] * w[j, 1] * w[k, 2]
+            new_v += weight * g_v
+            new_C += (4.0 * self.inv_dx * weight) * g_v.outer_product(dpos)
+        self.v[f + 1, p] = new_v
+        self.C[f + 1, p] = new_C
+        self.x[f + 1, p] = ti.min(ti.max(self.x[f, p] + self.dt * new_v, self.x_low), self.x_high)
+
+    @ti.kernel
+    def advance(self, f: ti.i32, record: ti.template()):
+        """One substep from frame f to f + 1 in one kernel: trial F, SVD and stress fused into P2G, the
+        sum of the chunks' grids and their clearing fused into the grid update, then G2P.
+
+        Only the box of the particles' stencil nodes is visited; ``grid_v_out`` elsewhere is left as it
+        was (G2P reads none of it). With ``record``, the SVD and the affine matrices of frame f are kept for
+        :meth:`substep_grad`.
+        """
+        self.particles_to_chunks(f, True, record)
+        for _ in range(1):
+            self.move_tools(f)
+            self.find_active_box()
+        lo, hi = ti.static(self.active_lo, self.active_hi)
+        for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
+            node = self.gather_chunks(cell)
+            v = ti.Vector.zero(ti.f32, 3)
+            if node[3] > 1e-12:
+                v = self.node_velocity(f, cell, node[3], ti.Vector([node[0], node[1], node[2]]))
+            self.grid_v_out[cell] = v
         for p in range(self.n):
-            Xp = self.x[f, p] * self.inv_dx
-            base = ti.cast(Xp - 0.5, ti.i32)
-            fx = Xp - ti.cast(base, ti.f32)
-            new_v = ti.Vector.zero(ti.f32, 3)
-            new_C = ti.Matrix.zero(ti.f32, 3, 3)
-            for i, j, k in ti.ndrange(3, 3, 3):
-                offset = ti.Vector([i, j, k])
-                dpos = ti.cast(offset, ti.f32) - fx
-                g_v = self.grid_v_out[base + offset]
-                weight = bspline_weight(fx[0], i) * bspline_weight(fx[1], j) * bspline_weight(fx[2], k)
-                new_v += weight * g_v
-                new_C += (4.0 * self.inv_dx * weight) * g_v.outer_product(dpos)
-            self.v[f + 1, p] = new_v
-            self.C[f + 1, p] = new_C
-            self.x[f + 1, p] = ti.min(ti.max(self.x[f, p] + self.dt * new_v, self.x_low), self.x_high)
+            self.grid_to_particle(f, p)
+
+    @ti.func
+    def particle_g2p_adjoint(self, c, f, p):
+        """Adjoint of G2P for particle p: its share of grid_v_out's adjoint into chunk c's grid, and x[f]'s."""
+        base, fx, w = self.stencil(self.x[f, p])
+        slope = bspline_slopes(fx)
+        new_v = self.v[f + 1, p]
+        moved = self.x[f, p] + self.dt * new_v
+        free = ti.Vector([ti.select(self.x_low < moved[d] < self.x_high, 1.0, 0.0) for d in ti.static(range(3))])
+        g_x_next = self.x.grad[f + 1, p] * free
+        g_v = self.v.grad[f + 1, p] + self.dt * g_x_next
+        g_C = self.C.grad[f + 1, p]
+        g_x = g_x_next
+        scale = 4.0 * self.inv_dx
+        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
+            offset = ti.Vector([i, j, k])
+            node = base + offset
+            dpos = ti.cast(offset, ti.f32) - fx
+            weight, d_weight = node_weight_and_gradient(w, slope, i, j, k, self.inv_dx)
+            grid_v = self.grid_v_out[node]
+            g_node = weight * g_v + (scale * weight) * (g_C @ dpos)
+            self.add_to_chunk(c, node, ti.Vector([g_node[0], g_node[1], g_node[2], 0.0]))
+            g_x += (g_v.dot(grid_v) + scale * grid_v.dot(g_C @ dpos)) * d_weight
+            g_x -= (scale * self.inv_dx * weight) * (g_C.transpose() @ grid_v)
+        self.x.grad[f, p] += g_x
 
     @ti.kernel
     def g2p_adjoint(self, f: ti.i32):
-        """Hand-written adjoint of ``g2p``: adjoints of x, v, C at f + 1 to grid_v_out and x at f."""
-        for p in range(self.n):
-            Xp = self.x[f, p] * self.inv_dx
-            base = ti.cast(Xp - 0.5, ti.i32)
-            fx = Xp - ti.cast(base, ti.f32)
-            new_v = self.v[f + 1, p]
-            moved = self.x[f, p] + self.dt * new_v
-            free = ti.Vector([ti.select(self.x_low < moved[d] < self.x_high, 1.0, 0.0) for d in ti.static(range(3))])
-            g_x_next = self.x.grad[f + 1, p] * free
-            g_v = self.v.grad[f + 1, p] + self.dt * g_x_next
-            g_C = self.C.grad[f + 1, p]
-            g_x = g_x_next
-            scale = 4.0 * self.inv_dx
-            for i, j, k in ti.ndrange(3, 3, 3):
-                offset = ti.Vector([i, j, k])
-                node = base + offset
-                dpos = ti.cast(offset, ti.f32) - fx
-                weight, d_weight = stencil_weight_and_gradient(fx, i, j, k, self.inv_dx)
-                grid_v = self.grid_v_out[node]
-                self.grid_v_out.grad[node] += weight * g_v + (scale * weight) * (g_C @ dpos)
-                g_x += (g_v.dot(grid_v) + scale * grid_v.dot(g_C @ dpos)) * d_weight
-                g_x -= (scale * self.inv_dx * weight) * (g_C.transpose() @ grid_v)
-            self.x.grad[f, p] += g_x
+        """Hand-written adjoint of G2P: adjoints of x, v, C at f + 1 to grid_v_out and x at f.
+
+        The grid adjoints go through the chunks' grids like P2G's mass and momentum (a fixed summation
+        order when ordered) and are summed into ``grid_v_out.grad`` on the active box of :meth:`p2g`.
+        """
+        if ti.static(self.serial_p2g):
+            for c in range(self.p2g_chunks):
+                begin, end = self.chunk_bounds(c)
+                for p in range(begin, end):
+                    self.particle_g2p_adjoint(c, f, p)
+        else:
+            for p in range(self.n):
+                self.particle_g2p_adjoint(0, f, p)
+        lo, hi = ti.static(self.active_lo, self.active_hi)
+        for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
+            total = self.gather_chunks(cell)
+            self.grid_v_out.grad[cell] = ti.Vector([total[0], total[1], total[2]])
 
     @ti.kernel
     def copy_frame(self, src: ti.i32, dst: ti.i32):
@@ -807,24 +969,12 @@ class MPMSimulator:
         self.action.from_numpy(padded)
 
     def substep(self, f: int) -> None:
-        """One MPM substep from frame f to f + 1 (forward only: trial F, SVD and stress fused)."""
-        self.clear_grid()
-        self.compute_stress_fused(f)
-        self.p2g(f)
-        self.tool_kinematics(f)
-        self.grid_op(f)
-        self.g2p(f)
+        """One MPM substep from frame f to f + 1 (one kernel: :meth:`advance`)."""
+        self.advance(f, False)
 
     def substep_recorded(self, f: int) -> None:
-        """The same substep, keeping the SVD of frame f for the adjoint pass."""
-        self.clear_grid()
-        self.compute_trial_F(f)
-        self.svd(f)
-        self.compute_stress(f)
-        self.p2g(f)
-        self.tool_kinematics(f)
-        self.grid_op(f)
-        self.g2p(f)
+        """The same substep, keeping the SVD and the affine matrices of frame f for the adjoint pass."""
+        self.advance(f, True)
 
     def substep_grad(self, f: int) -> None:
         """Adjoint of substep f, after :meth:`substep_recorded` filled the frames.
@@ -833,7 +983,6 @@ class MPMSimulator:
         reverse order. The adjoints of U, sig, V and the affine matrix must be zero on entry
         (:meth:`clear_particle_temporaries_grad`).
         """
-        self.clear_grid()
         self.p2g(f)
         self.grid_op(f)
         self.g2p_adjoint(f)
