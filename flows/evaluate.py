@@ -9,8 +9,9 @@ Its runs are tagged ``pasta.plan=oracle`` and, unless ``--experiment`` says othe
 oracle_plan``.
 
 For every seed, one MLflow run (experiment ``pasta/<task>``, stage ``evaluate``) holds the aggregated
-and per-configuration metrics (``pasta.evaluate.metrics``), the table ``tables/evaluation.json`` and one
-image strip per configuration ``figures/plan_config_<i>.png``. The simulator runs in the flow's own
+and per-configuration metrics (``pasta.evaluate.metrics``; for a learned plan also its diagnostics against the
+ground truth, ``plan_*``), the table ``tables/evaluation.json`` and one image strip per configuration
+``figures/plan_config_<i>.png``. The simulator runs in the flow's own
 thread, or with ``--workers N`` / ``--dask-address`` on a process pool or a Dask cluster (Taichi keeps
 one runtime per process; Prefect's thread pool is never used, see ``flows.runners``). The models come from
 ``pasta.train.locate.trained_models`` (CRS-Twice uses CRS's).
@@ -34,7 +35,14 @@ from pasta import progress, tracking
 from pasta.config import load
 from pasta.config.schema import TaskConfig
 from pasta.data.configurations import EvaluationProblem, evaluation_problem, evaluation_problems
-from pasta.evaluate import EvaluationResult, check_executor, evaluate_problem, render_result_strip, summary_metrics
+from pasta.evaluate import (
+    EvaluationResult,
+    check_executor,
+    evaluate_problem,
+    plan_quality_metrics,
+    render_result_strip,
+    summary_metrics,
+)
 from pasta.evaluate.oracle import check_plan_source, needs_models
 from pasta.plan import PlanSettings
 from pasta.train.bundle import TrainedModels
@@ -101,12 +109,15 @@ def default_experiment(plan_source: str) -> str:
 def log_seed(cfg: TaskConfig, results: Sequence[EvaluationResult], *, profile: str, variant: str, seed: int,
              executor: str, parent_run_id: str | None, tags: dict[str, str], plan_source: str = "learned",
              started_at: float | None = None) -> tuple[str, dict[str, float]]:
-    """One MLflow run for one seed: metrics, the table and the strips; returns its id and the metrics.
+    """One MLflow run for one seed: metrics (with a learned plan's diagnostics), the table and the strips; returns
+    its id and the metrics.
 
     ``started_at`` (``time.time()``) is when the seed's evaluation began: the run starts then.
     """
     rows = [r.row() for r in results]
     metrics = summary_metrics(rows)
+    if plan_source == "learned":
+        metrics.update(plan_quality_metrics(rows))
     with tracking.run(cfg.task, "evaluate", profile=profile, variant=variant, seed=seed, cfg=cfg,
                       parent_run_id=parent_run_id,
                       extra_tags={**tags, "pasta.executor": executor, "pasta.plan": plan_source},

@@ -9,7 +9,8 @@
   target's size) and the true goal; ``emd_reached_goal``: EMD between the reached observation and the true
   goal (the exact EMD does not use particle correspondence, so it equals ``emd_final``).
 
-:func:`summary_metrics` turns per-configuration results into the metric names the report reads.
+:func:`summary_metrics` turns per-configuration results into the metric names the report reads, and
+:func:`plan_quality_metrics` a learned plan's diagnostics (:mod:`pasta.evaluate.plan_diagnostics`).
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ import numpy as np
 from pasta.data.demos import shape_distance
 from pasta.geometry.distances import earth_movers_distance
 
-__all__ = ["AGGREGATED", "PER_CONFIGURATION", "planned_goal_distance", "shape_distance", "summary_metrics"]
+__all__ = ["AGGREGATED", "PER_CONFIGURATION", "PLAN_QUALITY", "PLAN_QUALITY_PER_CONFIGURATION", "plan_quality_metrics",
+           "planned_goal_distance", "shape_distance", "summary_metrics"]
 
 # Aggregated metric -> the per-configuration field it averages.
 AGGREGATED: Mapping[str, str] = {
@@ -38,6 +40,24 @@ PER_CONFIGURATION: Mapping[str, str] = {
     "performance": "performance",
     "success": "success",
     "planning_time_s": "planning_time_s",
+}
+
+# Aggregated plan-quality metric -> the per-configuration diagnostic it averages (learned plans only).
+PLAN_QUALITY: Mapping[str, str] = {
+    "plan_sequence_match_rate": "sequence_match",
+    "plan_attention_match_rate": "attention_match",
+    "plan_subgoal_emd": "subgoal_emd_mean",
+    "plan_optimiser_failure_rate": "optimiser_failed",
+}
+# Per-configuration plan-quality metric prefix -> field; logged as ``<prefix>_config_<config_id>``.
+PLAN_QUALITY_PER_CONFIGURATION: Mapping[str, str] = {
+    "plan_sequence_match": "sequence_match",
+    "plan_attention_match": "attention_match",
+    "plan_subgoal_emd": "subgoal_emd_mean",
+    "plan_score": "plan_score",
+    "plan_ground_truth_score": "ground_truth_score",
+    "plan_optimiser_failed": "optimiser_failed",
+    "emd_planned_goal": "emd_planned_goal",
 }
 
 
@@ -66,5 +86,21 @@ def summary_metrics(rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     metrics["failed_configs"] = float(sum(r.get("failure") is not None for r in rows))
     for row in rows:
         for prefix, field in PER_CONFIGURATION.items():
+            metrics[f"{prefix}_config_{int(row['config_id'])}"] = float(row[field])
+    return metrics
+
+
+def plan_quality_metrics(rows: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """Means over configurations and per-configuration values of a learned plan's diagnostics.
+
+    Each row needs ``config_id`` and the fields of ``PLAN_QUALITY_PER_CONFIGURATION``
+    (:func:`pasta.evaluate.plan_diagnostics.diagnostics_row`); booleans count as 0/1. A configuration without a
+    plan counts as a mismatch in the match rates; its NaN EMD and scores are skipped by the means.
+    """
+    if not rows:
+        raise ValueError("no evaluation results to summarise")
+    metrics = {name: _mean_of_known([float(r[field]) for r in rows]) for name, field in PLAN_QUALITY.items()}
+    for row in rows:
+        for prefix, field in PLAN_QUALITY_PER_CONFIGURATION.items():
             metrics[f"{prefix}_config_{int(row['config_id'])}"] = float(row[field])
     return metrics

@@ -5,7 +5,8 @@
 the settled observation and the goal into entity latents, plans (receding horizon when
 ``cfg.plan.receding_horizon`` is set, i.e. CRS-Twice, with the problem's fixed skill sequence; otherwise
 over every skill sequence of ``cfg.plan.horizon`` (default ``cfg.horizon``) whose entity count ends at
-the goal's), executes the plan and scores the final observation.
+the goal's), executes the plan and scores the final observation. A learned plan is then set beside the
+generator's ground-truth chain (:mod:`pasta.evaluate.plan_diagnostics`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from pasta.evaluate.encoding import EncodedScene, encode_scene
 from pasta.evaluate.execution import Execution, check_executor, decode_set, execute_plan
 from pasta.evaluate.metrics import planned_goal_distance, shape_distance
 from pasta.evaluate.oracle import check_plan_source, execute_oracle, needs_models
+from pasta.evaluate.plan_diagnostics import PlanDiagnostics, diagnose_learned_plan, diagnostics_row
 from pasta.geometry.distances import is_success, normalised_performance
 from pasta.plan import NoSkillSequenceError, Plan, PlanSettings, plan, plan_receding_horizon
 from pasta.sim.envs import make_env
@@ -56,7 +58,8 @@ class EvaluationResult:
 
     ``attention``: per step, the plan's attended entity indices; ``skipped``: per step, whether the dough
     already matched the subgoal; ``frames``: initial, each decoded subgoal set, reached, target;
-    ``failure``: why execution stopped early (a simulation that blew up), scored from the state before it.
+    ``failure``: why execution stopped early (a simulation that blew up), scored from the state before it;
+    ``diagnostics``: a learned plan beside the ground truth (None for the oracle's, or when nothing was planned).
     """
 
     config_id: int
@@ -74,15 +77,19 @@ class EvaluationResult:
     frames: tuple[Frame, ...]
     failure: str | None = None
     plan_source: str = "learned"
+    diagnostics: PlanDiagnostics | None = None
 
     def row(self) -> dict[str, Any]:
-        """The table row (``tables/evaluation.json``)."""
-        return {
-            "config_id": self.config_id, "skills": list(self.skills), "performance": self.performance,
-            "success": self.success, "planning_time_s": self.planning_time_s, "emd_initial": self.emd_initial,
-            "emd_final": self.emd_final, "emd_planned_goal": self.emd_planned_goal,
+        """The table row (``tables/evaluation.json``); a learned plan's row adds its diagnostics' fields."""
+        row = {
+            "config_id": self.config_id, "skills": list(self.skills), "attention": [list(a) for a in self.attention],
+            "performance": self.performance, "success": self.success, "planning_time_s": self.planning_time_s,
+            "emd_initial": self.emd_initial, "emd_final": self.emd_final, "emd_planned_goal": self.emd_planned_goal,
             "emd_reached_goal": self.emd_reached_goal, "failure": self.failure,
         }
+        if self.plan_source == "learned":
+            row.update(diagnostics_row(self.diagnostics))
+        return row
 
 
 def make_plan(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, obs: torch.Tensor,
@@ -151,6 +158,7 @@ class _Outcome:
     emd_planned_goal: float
     execution: Execution
     planned: bool
+    diagnostics: PlanDiagnostics | None = None
 
 
 def _learned_outcome(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, prepared: PreparedProblem,
@@ -169,6 +177,8 @@ def _learned_outcome(cfg: TaskConfig, bundle: TrainedModels, problem: Evaluation
         emd_planned_goal=planned_goal_distance(decode_set(bundle, the_plan.latent_sets[-1]), prepared.target, seed),
         execution=execution,
         planned=True,
+        diagnostics=diagnose_learned_plan(cfg, bundle, problem, the_plan, prepared.obs, prepared.goal.latents,
+                                          settings, seed),
     )
 
 
@@ -225,4 +235,5 @@ def evaluate_problem(cfg: TaskConfig, bundle: TrainedModels | None, problem: Eva
         frames=_frames(initial, execution, target, reached="reached" if outcome.planned else "reached (not planned)"),
         failure=execution.failure,
         plan_source=plan_source,
+        diagnostics=outcome.diagnostics,
     )

@@ -17,7 +17,7 @@ import pandas as pd
 from pasta.config.schema import PROFILE_NAMES, TASK_NAMES
 from pasta.data.storage import atomic_write_bytes
 from pasta.report import figures, tables
-from pasta.report.runs import evaluation_runs, newest_train_run, profiles
+from pasta.report.runs import CELL_KEYS, evaluation_runs, newest_train_run, profiles
 
 SUMMARY = "summary"  # the subject of the report over every task
 REPORT_FILE = "report.md"
@@ -48,8 +48,9 @@ def subject_tasks(subject: str) -> tuple[str, ...]:
     return (subject,)
 
 
-def _profile_tables(ev: pd.DataFrame, tasks: tuple[str, ...]) -> list[tables.Table]:
-    found = [tables.main_table(ev, tasks), tables.planning_time_table(ev, tasks), tables.emd_table(ev, tasks)]
+def _profile_tables(ev: pd.DataFrame, cells: pd.DataFrame, tasks: tuple[str, ...]) -> list[tables.Table]:
+    found = [tables.main_table(ev, tasks), tables.matrix_table(cells, tasks), tables.plan_quality_table(ev, tasks),
+             tables.planning_time_table(ev, tasks), tables.emd_table(ev, tasks)]
     if "CutRearrange" in tasks:
         found += [tables.ablation_table(ev), tables.samples_table(ev)]
     if "CRS" in tasks:
@@ -122,6 +123,8 @@ def build_report(subject: str, runs: pd.DataFrame, fetch_artifact: FetchArtifact
     tasks = subject_tasks(subject)
     ev_all = evaluation_runs(runs)
     ev_all = ev_all[ev_all["task"].isin(tasks)]
+    cells_all = evaluation_runs(runs, keys=CELL_KEYS)
+    cells_all = cells_all[cells_all["task"].isin(tasks)]
     command = "pasta report" + ("" if subject == SUMMARY else f" --task {subject}")
     lines = [f"# PASTA report: {'all tasks' if subject == SUMMARY else subject}", "",
              f"Built from MLflow runs alone (`{command}` rebuilds it). Cells are mean ± std over evaluation "
@@ -132,8 +135,9 @@ def build_report(subject: str, runs: pd.DataFrame, fetch_artifact: FetchArtifact
     pngs: dict[str, bytes] = {}
     for profile in profiles(runs, tasks, PROFILE_ORDER) or [None]:
         ev = ev_all[ev_all["profile"] == profile]
+        cells = cells_all[cells_all["profile"] == profile]
         lines += [f"## Profile `{profile}`" if profile else "## No finished runs yet", ""]
-        for table in _profile_tables(ev, tasks):
+        for table in _profile_tables(ev, cells, tasks):
             found.append((profile, table))
             lines += [f"### {table.title}", "", table.markdown(), ""]
             if table.note:

@@ -11,12 +11,17 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-# The metrics an evaluate run logs (contract of flows/evaluate.py) that the report reads.
-EVAL_METRICS = ("performance", "success_rate", "planning_time_s", "emd_planned_goal", "emd_reached_goal")
+# The metrics an evaluate run logs (contract of flows/evaluate.py) that the report reads; the plan_* ones are
+# a learned plan's diagnostics (pasta.evaluate.metrics.PLAN_QUALITY).
+EVAL_METRICS = ("performance", "success_rate", "planning_time_s", "emd_planned_goal", "emd_reached_goal",
+                "plan_sequence_match_rate", "plan_attention_match_rate", "plan_subgoal_emd",
+                "plan_optimiser_failure_rate")
 # The tags that tell evaluation runs apart; the newest finished run of each combination counts.
 EVAL_KEYS = ("task", "profile", "experiment", "variant", "sweep_value", "seed")
 # Tags carried beside the keys: how the run planned (learned, oracle) and executed (policy, scripted).
 EVAL_LABELS = ("plan", "executor")
+# Keys that keep the runs of one experiment and seed apart when they planned or executed differently.
+CELL_KEYS = (*EVAL_KEYS, *EVAL_LABELS)
 # Tasks that are planned with another task's models (their train runs live in that task's experiment).
 MODELS_FROM = {"CRS-Twice": "CRS"}
 

@@ -1,4 +1,5 @@
-"""The appendix's tables rebuilt from evaluation runs: mean ± std over seeds, the paper's numbers beside.
+"""The appendix's tables rebuilt from evaluation runs: mean ± std over seeds, the paper's numbers beside; and
+two of our own, the plan x executor matrix and the learned plans' quality against the ground truth.
 
 Every builder takes the tidy frame of :func:`pasta.report.runs.evaluation_runs` restricted to one
 profile and returns a :class:`Table` of strings. A row the paper has but no run produced says
@@ -160,6 +161,74 @@ def emd_table(ev: pd.DataFrame, tasks: Sequence[str]) -> Table:
     return Table("table7", "Table 7: EMD of the planned and the reached goal to the ground-truth goal",
                  pd.DataFrame(rows, columns=columns),
                  "The paper's values are from 4 real-world trajectories per task; ours are simulated.")
+
+
+# PASTA's runs that differ from the main ones only in plan source and executor: the matrix's cells.
+MATRIX_EXPERIMENTS = ("main", "scripted_executor", "oracle_plan")
+MATRIX_PLANS = (("oracle", "oracle plan"), ("learned", "learned plan"))  # (pasta.plan tag, row label)
+MATRIX_EXECUTORS = (("scripted", "scripted skills"), ("policy", "learned policies"))  # (pasta.executor, column)
+
+
+def _matrix_cell(runs: pd.DataFrame) -> str:
+    """Performance over the newest run of each seed, with the seed count; :data:`NO_VALUE` without runs."""
+    newest = runs.sort_values(["start_time", "run_id"], kind="mergesort").drop_duplicates("seed", keep="last")
+    if newest.empty:
+        return NO_VALUE
+    seeds = len(newest)
+    return f"{cell(newest['performance'])} ({seeds} seed{'s' if seeds > 1 else ''})"
+
+
+def matrix_table(cells: pd.DataFrame, tasks: Sequence[str]) -> Table:
+    """The plan x executor matrix (``docs/evaluation.md``): per task, performance with the oracle's or the
+    planner's plan, run by the scripted skills or the learned policies.
+
+    ``cells``: :func:`pasta.report.runs.evaluation_runs` with ``keys=CELL_KEYS``, so that runs of one experiment
+    and seed with different executors both count. A cell takes PASTA's runs of :data:`MATRIX_EXPERIMENTS`.
+    """
+    pool = cells[cells["experiment"].isin(MATRIX_EXPERIMENTS) & (cells["variant"] == PAPER_VARIANT)
+                 & (cells["sweep_value"] == "")]
+    rows = []
+    for task in tasks:
+        for plan, plan_label in MATRIX_PLANS:
+            row = {"task": task, "plan": plan_label}
+            for executor, label in MATRIX_EXECUTORS:
+                row[label] = _matrix_cell(pool[(pool["task"] == task) & (pool["plan"] == plan)
+                                               & (pool["executor"] == executor)])
+            rows.append(row)
+    columns = ["task", "plan", *(label for _, label in MATRIX_EXECUTORS)]
+    return Table("matrix", "Plan x executor: which half of the system loses the score",
+                 pd.DataFrame(rows, columns=columns),
+                 "Normalised performance, mean ± std over seeds. The oracle plan is the generator's own chain of "
+                 "subgoals and attention; oracle plan with scripted skills is the physics ceiling, learned plan with "
+                 f"learned policies is PASTA. Runs of the experiments {', '.join(MATRIX_EXPERIMENTS)}; "
+                 f"{NO_VALUE}: no finished run of that cell.")
+
+
+def plan_quality_table(ev: pd.DataFrame, tasks: Sequence[str]) -> Table:
+    """Learned plans against the generator's ground-truth chain (:mod:`pasta.evaluate.plan_diagnostics`): PASTA's
+    main runs and every other experiment whose learned plans logged diagnostics."""
+    rows = []
+    for task in tasks:
+        for experiment in ["main", *other_experiments(ev, [task])]:
+            runs = _select(ev, experiment, task, PAPER_VARIANT)
+            runs = runs[runs["plan"] == "learned"]
+            if experiment != "main" and runs["plan_sequence_match_rate"].isna().all():
+                continue
+            rows.append({"task": task, "experiment": experiment, "seeds": str(len(runs)),
+                         "skills = truth": cell(runs["plan_sequence_match_rate"], percent=True),
+                         "attention = truth": cell(runs["plan_attention_match_rate"], percent=True),
+                         "EMD(subgoal, truth)": cell(runs["plan_subgoal_emd"], 4),
+                         "EMD(planned, goal)": cell(runs["emd_planned_goal"], 4),
+                         "optimiser failed": cell(runs["plan_optimiser_failure_rate"], percent=True)})
+    columns = ["task", "experiment", "seeds", "skills = truth", "attention = truth", "EMD(subgoal, truth)",
+               "EMD(planned, goal)", "optimiser failed"]
+    return Table("plan_quality", "Plan quality: the planner's plans against the ground-truth chain",
+                 pd.DataFrame(rows, columns=columns),
+                 "Per seed, over the test configurations: the share whose planned skills are the chain's, and whose "
+                 "every step acts on the chain's pieces (a configuration without a plan counts as neither); the mean "
+                 "EMD of each decoded subgoal to the chain's stage; and the share of planned configurations where "
+                 "the planner's own objective scores the ground truth above its plan (the optimiser missed it; "
+                 "otherwise the networks prefer the wrong plan). Mean ± std over seeds.")
 
 
 # Experiments with their own table; every other ``pasta.experiment`` tag goes to ``experiments_table``.

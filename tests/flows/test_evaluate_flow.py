@@ -10,6 +10,7 @@ import pytest
 
 from pasta.cli import build_parser
 from pasta.config import load
+from pasta.evaluate.metrics import PLAN_QUALITY
 from pasta.models.latent_prior import LatentPrior
 from pasta.paths import checkpoint_dir
 from pasta.train.bundle import save_trained, untrained
@@ -41,6 +42,9 @@ def test_evaluation_flow_plans_executes_and_logs_every_metric(prefect_server, is
     assert run["tags.pasta.experiment"] == "ablation" and run["tags.pasta.variant"] == "pasta"
     names = ["performance", "success_rate", "planning_time_s", "emd_planned_goal", "emd_reached_goal", "emd_initial"]
     names += [f"{m}_config_{i}" for m in ("performance", "success", "planning_time_s") for i in (0, 1)]
+    names += list(PLAN_QUALITY)  # a learned plan's diagnostics against the ground truth
+    names += [f"{m}_config_{i}" for m in ("plan_sequence_match", "plan_score", "plan_ground_truth_score")
+              for i in (0, 1)]
     for name in names:
         assert np.isfinite(run[f"metrics.{name}"]), name
     assert run["metrics.performance"] == pytest.approx(summary["performance_mean"])
@@ -58,6 +62,7 @@ def test_evaluation_flow_plans_executes_and_logs_every_metric(prefect_server, is
     assert [row["config_id"] for row in table] == [0, 1]
     assert [float(row["success"]) for row in table] == per_config
     assert all(len(row["skills"]) == cfg.horizon and row["emd_reached_goal"] == row["emd_final"] for row in table)
+    assert [row["sequence_match"] for row in table] == [run[f"metrics.plan_sequence_match_config_{i}"] for i in (0, 1)]
     figures = {f.path for f in client.list_artifacts(run_id, "figures")}
     assert figures == {"figures/plan_config_0.png", "figures/plan_config_1.png"}
 
