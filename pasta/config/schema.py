@@ -72,9 +72,10 @@ class SimConfig(Frozen):
     # never separates (docs/simulator.md).
     tool_expel_rate: float = Field(default=0.1, ge=0, le=1)
     arch: Literal["cpu", "cuda", "auto"] = "cpu"
-    # How P2G scatters to the grid: "serial" (no float atomics: bit-reproducible, and faster on 2 CPU
-    # cores), "parallel" (atomic adds: needed on a GPU, where a serial scatter is one thread), or "auto":
-    # serial on the CPU, parallel on CUDA.
+    # How P2G scatters to the grid: "serial" (no float atomics: fixed chunks of particles, each scattered
+    # serially into its own grid, the chunks in parallel and summed in a fixed order: bit-reproducible at
+    # any thread count), "parallel" (one grid, atomic adds: for a GPU), or "auto": serial on the CPU,
+    # parallel on CUDA (docs/simulator.md).
     p2g: Literal["auto", "serial", "parallel"] = "auto"
     # The per-particle 3x3 SVD of every substep: "taichi" (the built-in iterative ti.svd) or "fast"
     # (pasta.sim.svd3: closed-form, about a third of the cost on the CPU). Both share one convention, and
@@ -244,6 +245,9 @@ class TrainConfig(Frozen):
     policy_lr_schedule: Literal["cosine", "constant"] = "cosine"
     policy_eval_every: int = Field(ge=1)
     policy_patience: int | None = Field(default=None, ge=1)
+    # The forward passes of VAE and policy training: "fp32", or "bf16" autocast (float32 weights, bfloat16
+    # matrix products; pasta/train/precision.py). The heads are small enough that fp32 costs nothing.
+    precision: Literal["fp32", "bf16"] = "fp32"
 
 
 class PlanConfig(Frozen):
@@ -272,6 +276,9 @@ class PolicyNetConfig(Frozen):
     """
 
     encoder: Literal[POLICY_ENCODERS] = "pointnet2"
+    # Points of the observation and goal clouds a policy sees, in training and in execution (each cloud
+    # resampled to this many; the tool keeps its surface points). [S] §3.1: 1000.
+    points: int = Field(default=1000, ge=8)
 
 
 class EvalConfig(Frozen):

@@ -9,8 +9,9 @@ For each plan step ``h`` (skill ``k_h``, attention ``A_h``):
 3. find the attended dough (:func:`pasta.evaluate.selection.attended_mask`) and freeze its observation
    indices for the whole skill;
 4. place the skill's tool next to it (:func:`pasta.data.skills.place_tool_for_skill`);
-5. act for ``cfg.sim.steps_per_skill`` steps with the learned policy (closed loop on the frozen points,
-   resampled to 1000, the tool's points and the stacked subgoals) or the scripted skill (open loop,
+5. act for ``cfg.sim.steps_per_skill`` steps with the learned policy (closed loop on the frozen points
+   resampled to ``cfg.policy.points`` every step, the tool's points and the stacked subgoals resampled once
+   to as many) or the scripted skill (open loop,
    toward the subgoals; appendix §3.1's real-robot executor);
 6. ``cfg.sim.settle_steps`` zero-action steps, then park the tool at its back pose.
 """
@@ -26,7 +27,7 @@ import torch
 from pasta.config.schema import TaskConfig
 from pasta.data.configurations import tool_clearance
 from pasta.data.skills import place_tool_for_skill, scripted_actions, skill_tool
-from pasta.evaluate.encoding import ENTITY_POINTS, segment
+from pasta.evaluate.encoding import segment
 from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_action
 from pasta.evaluate.selection import attended_mask
 from pasta.geometry.distances import chamfer_distance
@@ -128,11 +129,12 @@ def already_reached(points: np.ndarray, labels: np.ndarray, subgoal_points: np.n
 
 def _run_policy(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, plan_step: int, indices: np.ndarray,
                 goal_points: np.ndarray, goal_latents: torch.Tensor, rng: np.random.Generator) -> None:
-    tool_row = env.tool_names.index(tool)
+    tool_row, n_points = env.tool_names.index(tool), env.cfg.policy.points
+    goal_points = resample(goal_points, n_points, rng)  # one cloud of the new subgoals, as in training
     for k in range(env.cfg.sim.steps_per_skill):
         obs = env.observation()
         seen = PolicyInput(
-            obs_points=resample(obs.dough_points[indices], ENTITY_POINTS, rng),
+            obs_points=resample(obs.dough_points[indices], n_points, rng),
             tool_points=obs.tool_points[tool],
             tool_state=obs.tool_states[tool_row],
             goal_points=goal_points,

@@ -104,8 +104,8 @@ def chamfer_distance(a: torch.Tensor, b: torch.Tensor, *, chunk_size: int = 4) -
         bb = (bc * bc).sum(-1)  # (c, M)
         # (c, N, M) = |y|^2 - 2 x.y + |x|^2
         sq = torch.baddbmm(bb.unsqueeze(1), ac, bc.transpose(1, 2), alpha=-2.0) + aa.unsqueeze(2)
-        a_to_b = sq.min(dim=2).values.clamp_min(0.0).mean(dim=1)
-        b_to_a = sq.min(dim=1).values.clamp_min(0.0).mean(dim=1)
+        a_to_b = sq.amin(dim=2).clamp_min(0.0).mean(dim=1)  # amin: no argmin, several times faster than min
+        b_to_a = sq.amin(dim=1).clamp_min(0.0).mean(dim=1)
         parts.append(a_to_b + b_to_a)
     out = torch.cat(parts)
     return out[0] if unbatched else out

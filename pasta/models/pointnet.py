@@ -212,7 +212,8 @@ def _grouped_first_layer(
     per_point = F.linear(features.flatten(0, 1), w_x, first.bias)  # (B * N, C_1)
     neighbour_pos = pos.flatten(0, 1).index_select(0, rows).view(-1, *centres.shape[:2], 3)  # (K, B, S, 3)
     relative = (neighbour_pos - centres).view(-1, 3)  # (K * B * S, 3)
-    return per_point.index_select(0, rows).addmm_(relative, w_pos.t())
+    dtype = per_point.dtype  # bfloat16 under a caller's autocast, which in-place products do not follow
+    return per_point.index_select(0, rows).addmm_(relative.to(dtype), w_pos.t().to(dtype))
 
 
 class SetAbstraction(nn.Module):

@@ -123,7 +123,9 @@ class PointCloudVAE(nn.Module):
 
         ``z`` is drawn by reparameterisation with noise from ``generator``. The Chamfer distance (squared,
         summed over both directions, ``pasta.geometry.chamfer_distance``) is taken in normalised
-        coordinates, so the loss does not depend on the world scale.
+        coordinates, so the loss does not depend on the world scale. Under a caller's autocast only the
+        encoder runs in reduced precision: the decoder and the Chamfer distance (whose squared distances
+        cancel) always run in float32.
 
         Args:
             points: ``(B, N, 3)`` entities in world coordinates.
@@ -134,11 +136,12 @@ class PointCloudVAE(nn.Module):
             Chamfer), ``kl`` (nats per entity) and ``chamfer_world`` (the Chamfer in world units).
         """
         shape, _ = self.normalise(points)
-        z_mean, z_logvar = self.encode_shape(shape)
-        noise = random_draws.randn(z_mean.shape, generator, dtype=z_mean.dtype, device=z_mean.device)
-        z = z_mean + noise * torch.exp(0.5 * z_logvar)
-        reconstruction = chamfer_distance(self.decode_shape(z), shape).mean()
-        kl = 0.5 * (z_mean.square() + z_logvar.exp() - 1.0 - z_logvar).sum(dim=-1).mean()
+        z_mean, z_logvar = (value.float() for value in self.encode_shape(shape))
+        with torch.autocast(device_type=shape.device.type, enabled=False):  # a caller's bf16 covers the encoder only
+            noise = random_draws.randn(z_mean.shape, generator, dtype=z_mean.dtype, device=z_mean.device)
+            z = z_mean + noise * torch.exp(0.5 * z_logvar)
+            reconstruction = chamfer_distance(self.decode_shape(z), shape).mean()
+            kl = 0.5 * (z_mean.square() + z_logvar.exp() - 1.0 - z_logvar).sum(dim=-1).mean()
         loss = reconstruction + self.config.beta * kl
         metrics = {
             "loss": loss.item(),

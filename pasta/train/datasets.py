@@ -112,11 +112,15 @@ class TransitionSampler:
         trajectories: positions of the trajectories to use.
         filter_epsilon: squared-Chamfer filtering threshold (0: no filtering).
         chamfer: shared memo of entity-pair distances.
+        cloud_points: points of the policy samples' observation and goal clouds (default: the dataset's
+            observation size, ``cfg.policy.points`` in training).
     """
 
     def __init__(self, demos: Demonstrations, table: EntityTable, skills: tuple[SkillConfig, ...],
-                 trajectories: np.ndarray, filter_epsilon: float, chamfer: PairChamfer) -> None:
+                 trajectories: np.ndarray, filter_epsilon: float, chamfer: PairChamfer,
+                 cloud_points: int | None = None) -> None:
         self.demos, self.table, self.skills = demos, table, skills
+        self.cloud_points = cloud_points or demos.points.shape[1]
         self.filter_epsilon = filter_epsilon
         self.chamfer = chamfer
         self.transitions: list[np.ndarray] = []  # per skill: (n_k, 2) rows of (trajectory position, t)
@@ -183,7 +187,7 @@ class TransitionSampler:
         chosen = chosen[:limit]
         if not chosen:
             return None
-        n_points = self.demos.points.shape[1]
+        n_points = self.cloud_points
         obs_pts, goal_pts = [], []
         for j in chosen:
             obs_pts.append(state_cloud(self.demos, self.table, pairs[j][0], n_points, rng))

@@ -77,15 +77,16 @@ def build_entity_table(demos: Demonstrations, *, n_points: int = 1000, whole_sce
 def state_cloud(demos: Demonstrations, table: EntityTable, entity_ids: np.ndarray, n_points: int,
                 rng: np.random.Generator) -> np.ndarray:
     """The original points of the given entities (all of one state) together, resampled to ``(n_points, 3)``."""
-    states = np.unique(table.state[entity_ids])
-    if len(states) != 1:
-        raise ValueError(f"entities {entity_ids.tolist()} belong to states {states.tolist()}, need exactly one")
+    states = table.state[entity_ids]
+    if len(states) == 0 or (states != states[0]).any():
+        raise ValueError(f"entities {entity_ids.tolist()} belong to states {np.unique(states).tolist()}, "
+                         f"need exactly one")
     points = demos.points[states[0]]
     labels = table.label[entity_ids]
     if (labels < 0).any():
         chosen = points
-    else:
-        chosen = points[np.isin(demos.labels[states[0]], labels)]
+    else:  # a few labels: comparing against each is faster than np.isin's sort
+        chosen = points[(demos.labels[states[0]][:, None] == labels[None, :]).any(axis=1)]
     return resample(chosen, n_points, rng)
 
 

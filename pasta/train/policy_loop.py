@@ -38,6 +38,7 @@ from pasta.models.variants import VariantSpec, variant_spec
 from pasta.train.bundle import TrainedModels
 from pasta.train.datasets import PolicySamples, TransitionSampler, pad_sets
 from pasta.train.metrics import action_mse
+from pasta.train.precision import check_precision, training_autocast
 from pasta.train.progress import EpochCallback, epoch_generators
 
 __all__ = ["PolicyResult", "PolicySettings", "evaluate_policies", "heldout_mse", "lr_at", "policy_forward",
@@ -60,6 +61,7 @@ class PolicySettings:
     lambda_policy: float = 1.0
     sigma_z: float = 0.0
     sigma_t: float = 0.0
+    precision: str = "fp32"
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -67,6 +69,7 @@ class PolicySettings:
                 "cosine", "constant") or (self.patience is not None and self.patience < 1):
             raise ValueError(f"need steps, batch_size, eval_every >= 1, lr > 0, lr_schedule cosine or constant "
                              f"and patience None or >= 1, got {self}")
+        check_precision(self.precision)
 
     @classmethod
     def from_config(cls, cfg: TaskConfig, variant: str, seed: int = 0) -> PolicySettings:
@@ -76,7 +79,7 @@ class PolicySettings:
                    point_noise=train.policy_point_noise, lr_schedule=train.policy_lr_schedule,
                    eval_every=train.policy_eval_every, patience=train.policy_patience,
                    lambda_policy=train.lambda_policy, sigma_z=train.feasibility_sigma_z if noisy else 0.0,
-                   sigma_t=train.feasibility_sigma_t if noisy else 0.0, seed=seed)
+                   sigma_t=train.feasibility_sigma_t if noisy else 0.0, precision=train.precision, seed=seed)
 
 
 def lr_at(step: int, settings: PolicySettings) -> float:
@@ -121,9 +124,10 @@ def policy_forward(policy: nn.Module, spec: VariantSpec, samples: PolicySamples,
 def policy_loss(policy: nn.Module, spec: VariantSpec, settings: PolicySettings, samples: PolicySamples,
                 latents: torch.Tensor, latent_dim: int, generator: torch.Generator) -> torch.Tensor:
     """``L_pi``: the squared action error summed over the ``A`` dimensions, averaged over the ``B`` samples
-    (noisy inputs, model_spec §4.4)."""
-    predicted = policy_forward(policy, spec, samples, latents, latent_dim, settings, generator)
-    return (predicted - samples.actions.to(latents.device)).square().sum(dim=1).mean()
+    (noisy inputs, model_spec §4.4); the forward pass in ``settings.precision``, the error in float32."""
+    with training_autocast(settings.precision, latents.device):
+        predicted = policy_forward(policy, spec, samples, latents, latent_dim, settings, generator)
+    return (predicted.float() - samples.actions.to(latents.device)).square().sum(dim=1).mean()
 
 
 def _predictions(policy: nn.Module, spec: VariantSpec, samples: PolicySamples, latents: torch.Tensor,

@@ -76,7 +76,8 @@ def vae_stage(cfg: TaskConfig, data: TrainingData, folder: str | Path, *, model_
     if final.is_file():
         return load_vae(final)
     config = (model_config or ModelConfig()).with_latent_dim(cfg.train.latent_dim).vae
-    settings = VAESettings(epochs=cfg.train.vae_epochs, lr=cfg.train.vae_lr, seed=seed)
+    settings = VAESettings(epochs=cfg.train.vae_epochs, lr=cfg.train.vae_lr, precision=cfg.train.precision,
+                           seed=seed)
     result = train_vae(vae_clouds(data.demos, data.table, data.vae_train),
                        vae_clouds(data.demos, data.table, data.vae_heldout), config, settings,
                        folder / "training.pt", on_epoch=on_epoch, device=device)
@@ -96,8 +97,9 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     latents = encode_entities(vae, data.table.clouds, device)
     chamfer = PairChamfer(data.table)
     epsilon = DEFAULT_FILTER_EPSILON if spec.filter_entities else 0.0
-    train_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_train, epsilon, chamfer)
-    test_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_heldout, epsilon, chamfer)
+    points = cfg.policy.points
+    train_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_train, epsilon, chamfer, points)
+    test_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_heldout, epsilon, chamfer, points)
     train_states = np.concatenate([np.arange(data.demos.first_state[i], data.demos.target_state[i] + 1)
                                    for i in data.heads_train])
     train_entities = torch.from_numpy(data.table.of_states(train_states)).to(device)

@@ -21,6 +21,7 @@ import torch
 from pasta.geometry.distances import chamfer_distance
 from pasta.models.checkpoint import load_checkpoint, restore_models, save_checkpoint
 from pasta.models.vae import PointCloudVAE, VAEConfig
+from pasta.train.precision import check_precision, training_autocast
 from pasta.train.progress import EpochCallback, epoch_generators
 
 __all__ = ["VAEResult", "VAESettings", "heldout_chamfer", "load_vae", "lr_factor", "save_vae", "train_vae"]
@@ -28,16 +29,18 @@ __all__ = ["VAEResult", "VAESettings", "heldout_chamfer", "load_vae", "lr_factor
 
 @dataclass(frozen=True)
 class VAESettings:
-    """Epochs, learning rate, batch size and seed of VAE training."""
+    """Epochs, learning rate, batch size, forward precision (``fp32`` or ``bf16``) and seed of VAE training."""
 
     epochs: int
     lr: float
     batch_size: int = 64
+    precision: str = "fp32"
     seed: int = 0
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.batch_size < 1 or self.lr <= 0:
             raise ValueError(f"need epochs >= 1, batch_size >= 1 and lr > 0, got {self}")
+        check_precision(self.precision)
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,7 +123,8 @@ def train_vae(train_clouds: torch.Tensor, heldout_clouds: torch.Tensor, config: 
         vae.train()
         for begin in range(0, n, settings.batch_size):
             points = train_clouds[order[begin : begin + settings.batch_size]].to(device)
-            loss, parts = vae.elbo_loss(points, generator)
+            with training_autocast(settings.precision, device):
+                loss, parts = vae.elbo_loss(points, generator)
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()

@@ -85,3 +85,19 @@ def test_policy_samples_and_cost_pairs(cfg, training_data):
 def test_missing_or_foreign_dataset_is_refused(cfg, tmp_path):
     with pytest.raises(DatasetError, match="index"):
         load_demonstrations(tmp_path, cfg)
+
+
+def test_policy_samples_have_the_configured_number_of_points_drawn_from_the_same_pieces(cfg, training_data):
+    demos, table = training_data.demos, training_data.table
+    chamfer = PairChamfer(table)
+    full = TransitionSampler(demos, table, cfg.skills, np.arange(10), 5e-4, chamfer)
+    half = TransitionSampler(demos, table, cfg.skills, np.arange(10), 5e-4, chamfer, cloud_points=POINTS // 2)
+    rows = full.transitions[1][:8]
+    a = full.policy_samples(1, rows, np.random.default_rng(3), limit=4)
+    b = half.policy_samples(1, rows, np.random.default_rng(3), limit=4)
+    assert a.obs_points.shape == (4, POINTS, 3) and b.obs_points.shape == (4, POINTS // 2, 3)
+    assert b.goal_points.shape == (4, POINTS // 2, 3)
+    assert [ids.tolist() for ids in a.obs_ids] == [ids.tolist() for ids in b.obs_ids]
+    for dense, sparse in zip(a.obs_points.numpy(), b.obs_points.numpy(), strict=True):  # a subset of the same piece
+        gaps = np.linalg.norm(sparse[:, None] - dense[None], axis=-1).min(axis=1)
+        assert gaps.max() < 0.05

@@ -147,3 +147,30 @@ def test_resume_after_an_interruption_ends_like_an_uninterrupted_run(tmp_path, c
     untimed = [[(s, {k: v for k, v in m.items() if k != "policy_round_s"}) for s, m in r.curve]
                for r in (straight, resumed)]
     assert untimed[0] == untimed[1]
+
+
+def test_bf16_training_runs_the_policy_in_bfloat16_and_still_lowers_its_loss(tmp_path, setup, monkeypatch):
+    bundle, sampler, latents, held_out = setup
+    seen_dtypes = []
+    forward = policy_loop.policy_forward
+
+    def recording(*args, **kwargs):
+        actions = forward(*args, **kwargs)
+        seen_dtypes.append(actions.dtype)
+        return actions
+
+    monkeypatch.setattr(policy_loop, "policy_forward", recording)
+    settings = dataclasses.replace(SETTINGS, steps=12, eval_every=12, precision="bf16")
+    result = train_policies(bundle, sampler, held_out, latents, settings, tmp_path / "p.pt")
+    # the training forwards ran under bf16 autocast; the held-out evaluations stay float32
+    assert torch.bfloat16 in seen_dtypes and torch.float32 in seen_dtypes
+    first, last = result.curve[0][1], result.curve[-1][1]
+    for skill in ("cut", "rearrange"):
+        assert math.isfinite(last[f"policy_heldout_mse_{skill}"])
+        assert last[f"policy_heldout_mse_{skill}"] < first[f"policy_heldout_mse_{skill}"], (first, last)
+    assert all(p.dtype == torch.float32 for p in bundle.models["policy"].parameters())
+
+
+def test_an_unknown_precision_is_refused_by_name():
+    with pytest.raises(ValueError, match="'fp16'"):
+        dataclasses.replace(SETTINGS, precision="fp16")

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from pasta.models import VARIANTS, variant_spec
+from pasta.models.vae import PointCloudVAE
 from pasta.train.bundle import untrained
 from pasta.train.datasets import vae_clouds
 from pasta.train.heads_loop import HeadsSettings, HeldOut, skill_loss, train_heads
@@ -65,6 +66,23 @@ def test_vae_training_lowers_the_loss_and_keeps_the_best(tmp_path, training_data
     losses = [h["vae_train_loss"] for h in result.history]
     assert losses[-1] < 0.7 * losses[0], losses  # measured 1.43 -> 0.76
     assert result.heldout_chamfer == min(h["vae_heldout_chamfer_epoch"] for h in result.history)
+
+
+def test_bf16_vae_training_encodes_in_bfloat16_decodes_in_float32_and_lowers_the_loss(tmp_path, training_data):
+    data = training_data
+    train, held = vae_clouds(data.demos, data.table, data.vae_train), vae_clouds(data.demos, data.table,
+                                                                                 data.vae_heldout)
+    config = tiny_model_config().vae
+    vae = PointCloudVAE(config)
+    vae.fit_scale(train)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        assert vae.encode_shape(vae.normalise(train[:4])[0])[0].dtype == torch.bfloat16
+        loss, _ = vae.elbo_loss(train[:4], torch.Generator().manual_seed(0))
+    assert loss.dtype == torch.float32
+    result = train_vae(train, held, config, VAESettings(epochs=3, lr=2e-3, batch_size=16, precision="bf16"),
+                       tmp_path / "vae.pt")
+    losses = [h["vae_train_loss"] for h in result.history]
+    assert losses[-1] < 0.7 * losses[0], losses
 
 
 class Interrupt(Exception):
