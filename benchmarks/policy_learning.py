@@ -92,8 +92,9 @@ def heldout_mse(policy, samples: dict, points: int) -> float:
     from pasta.train.metrics import action_mse
 
     policy.eval()
-    with torch.no_grad():
-        predicted = policy(*clouds(samples, slice(None), points)).float().numpy()
+    with torch.no_grad():  # in chunks: PointNet++ on hundreds of clouds at once takes gigabytes
+        predicted = np.concatenate([policy(*clouds(samples, slice(start, start + 32), points)).float().numpy()
+                                    for start in range(0, len(samples["actions"]), 32)])
     policy.train()
     return action_mse(predicted, samples["actions"].numpy())
 
@@ -168,7 +169,7 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=5.0, help="training wall time per configuration")
     parser.add_argument("--eval-s", type=float, default=30.0, help="training seconds between evaluations")
     parser.add_argument("--pool", type=int, default=2048, help="training samples drawn per skill")
-    parser.add_argument("--heldout", type=int, default=256, help="held-out samples drawn per skill (at most)")
+    parser.add_argument("--heldout", type=int, default=96, help="held-out samples drawn per skill (at most)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS / "policy_learning.json")
@@ -188,7 +189,8 @@ def main() -> None:
                "load_after": load_average(), "draw_s": pools["draw_s"], "rows": rows}
     print_table(payload)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(args.out, json.dumps(payload, indent=1).encode())
+    data = json.dumps(payload, indent=1).encode()
+    atomic_write_bytes(args.out, lambda handle: handle.write(data))
     print(f"wrote {args.out}")
 
 
