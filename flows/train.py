@@ -63,12 +63,12 @@ def _digest(*parts: object) -> str:
 
 
 def vae_key(cfg: TaskConfig, folder: Path, whole_scene: bool, model_config: ModelConfig, seed: int) -> str:
-    """Hash of what the VAE depends on: its settings, the representation and the dataset index's content."""
+    """Hash of what the VAE depends on: its settings (precision included), the representation and the dataset
+    index's content."""
     index = (folder / "index.csv").read_bytes()
-    precision = () if cfg.train.precision == "fp32" else (cfg.train.precision,)  # fp32 keys predate the option
-    return _digest(cfg.train.vae_lr, cfg.train.vae_epochs, cfg.train.latent_dim, whole_scene,
+    return _digest(cfg.train.vae_lr, cfg.train.vae_epochs, cfg.train.latent_dim, cfg.train.precision, whole_scene,
                    model_config.with_latent_dim(cfg.train.latent_dim).vae, hashlib.sha256(index).hexdigest(),
-                   cfg.data.model_dump(mode="json"), seed, *precision)
+                   cfg.data.model_dump(mode="json"), seed)
 
 
 @task(name="train-vae", cache_policy=NO_CACHE)

@@ -56,3 +56,14 @@ def test_train_flow_logs_metrics_figures_and_the_bundle(prefect_server, isolated
     assert trained_models("CutRearrange", "smoke", "pasta").action_dim == bundle.action_dim
     with pytest.raises(FileNotFoundError, match="pasta train --task CutRearrange --profile smoke --variant flat3d"):
         trained_models("CutRearrange", "smoke", "flat3d")
+
+
+def test_a_bf16_vae_does_not_reuse_the_fp32_one(tmp_path):
+    from flows.train import vae_key
+    from pasta.config import load
+
+    (tmp_path / "index.csv").write_text("trajectory_id\n0\n")
+    fp32, bf16 = load("CutRearrange", "smoke"), load("CutRearrange", "smoke", ["train.precision=bf16"])
+    sizes = tiny_model_config()
+    assert vae_key(fp32, tmp_path, False, sizes, 0) != vae_key(bf16, tmp_path, False, sizes, 0)
+    assert vae_key(fp32, tmp_path, False, sizes, 0) == vae_key(fp32, tmp_path, False, sizes, 0)
