@@ -28,6 +28,7 @@ DEMO_METHODS = ("gbto", "scripted")  # how demonstrations are made (pasta/data/d
 TOOL_KINDS = ("box", "knife", "gripper", "rolling_pin")
 PLAN_COSTS = ("learned", "decoded")  # the planner's set cost (PlanConfig.cost)
 POLICY_ENCODERS = ("pointnet2", "pointnet")  # the policies' point encoder (PolicyNetConfig.encoder)
+POLICY_FRAMES = ("world", "dough")  # where the policies' clouds are expressed (PolicyNetConfig.frame)
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
@@ -272,10 +273,20 @@ class PolicyNetConfig(Frozen):
     ``encoder``: ``pointnet2``, the appendix's PointNet++ over the role-tagged union of the observation, tool
     and goal clouds; or ``pointnet``, a compact PointNet per cloud, max-pooled and concatenated, about 25x
     fewer operations per training step. The tool-concat ablation follows the choice; the latent-set policy
-    has no point encoder.
+    has no point encoder. ``frame``, ``phase_input`` and ``chunk`` shape the set policy (PASTA's) only: the
+    two policy ablations of Table 5 keep the appendix's inputs and one action per call.
     """
 
     encoder: Literal[POLICY_ENCODERS] = "pointnet2"
+    # Where the clouds are expressed: "world" (the appendix's), or "dough": shifted so that the observed
+    # dough's horizontal centre is the origin, with the tool's and the goal's centre offsets from it given to
+    # the action head (pasta.models.policy.dough_frame).
+    frame: Literal[POLICY_FRAMES] = "world"
+    # Whether the set policy also reads the skill's phase, step / steps_per_skill (the appendix's does not).
+    phase_input: bool = False
+    # Actions the set policy predicts per call (action chunking): the executor acts the chunk out and asks
+    # again after that many steps; training fits every step of the chunk. 1 (the appendix's): one per step.
+    chunk: int = Field(default=1, ge=1)
     # Points of the observation and goal clouds a policy sees, in training and in execution (each cloud
     # resampled to this many; the tool keeps its surface points). [S] §3.1: 1000.
     points: int = Field(default=1000, ge=8)

@@ -10,8 +10,9 @@ For each plan step ``h`` (skill ``k_h``, attention ``A_h``):
    indices for the whole skill;
 4. place the skill's tool next to it (:func:`pasta.data.skills.place_tool_for_skill`);
 5. act for ``cfg.sim.steps_per_skill`` steps with the learned policy (closed loop on the frozen points
-   resampled to ``cfg.policy.points`` every step, the tool's points and the stacked subgoals resampled once
-   to as many) or the scripted skill (open loop,
+   resampled to ``cfg.policy.points`` every time it is asked, the tool's points and the stacked subgoals
+   resampled once to as many; a policy with ``policy.chunk`` > 1 is asked every ``chunk`` steps and its
+   actions are acted out in between) or the scripted skill (open loop,
    toward the subgoals; appendix §3.1's real-robot executor);
 6. ``cfg.sim.settle_steps`` zero-action steps, then park the tool at its back pose.
 """
@@ -131,16 +132,22 @@ def _run_policy(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, pla
                 goal_points: np.ndarray, goal_latents: torch.Tensor, rng: np.random.Generator) -> None:
     tool_row, n_points = env.tool_names.index(tool), env.cfg.policy.points
     goal_points = resample(goal_points, n_points, rng)  # one cloud of the new subgoals, as in training
-    for k in range(env.cfg.sim.steps_per_skill):
-        obs = env.observation()
-        seen = PolicyInput(
-            obs_points=resample(obs.dough_points[indices], n_points, rng),
-            tool_points=obs.tool_points[tool],
-            tool_state=obs.tool_states[tool_row],
-            goal_points=goal_points,
-            goal_latents=goal_latents,
-        )
-        env.step(checked_action(policy_action(bundle, skill, seen), skill, plan_step, k))
+    n_steps = env.cfg.sim.steps_per_skill
+    chunk = np.zeros((0, env.action_dim))
+    for k in range(n_steps):
+        if len(chunk) == 0:  # ask the policy; a chunking policy answers for several steps
+            obs = env.observation()
+            seen = PolicyInput(
+                obs_points=resample(obs.dough_points[indices], n_points, rng),
+                tool_points=obs.tool_points[tool],
+                tool_state=obs.tool_states[tool_row],
+                goal_points=goal_points,
+                goal_latents=goal_latents,
+                phase=k / n_steps,
+            )
+            chunk = policy_action(bundle, skill, seen).reshape(-1, env.action_dim)
+        env.step(checked_action(chunk[0], skill, plan_step, k))
+        chunk = chunk[1:]
 
 
 def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step: int, mask: np.ndarray,

@@ -36,6 +36,7 @@ class PolicyInput:
         tool_state: ``(8,)`` the tool's position, quaternion and gap.
         goal_points: ``(N_g, 3)`` the decoded new subgoals, stacked.
         goal_latents: ``(N_out, D_z + 3)`` the new subgoal latents.
+        phase: the step within the skill over the skill's step budget, in [0, 1).
     """
 
     obs_points: np.ndarray
@@ -43,11 +44,12 @@ class PolicyInput:
     tool_state: np.ndarray
     goal_points: np.ndarray
     goal_latents: torch.Tensor
+    phase: float = 0.0
 
 
 def policy_action(bundle: TrainedModels, skill: str, seen: PolicyInput) -> np.ndarray:
-    """The raw ``(action_dim,)`` float64 action of ``skill``'s policy (no clipping, no checks), computed on
-    the policy's device."""
+    """The raw ``(H * action_dim,)`` float64 actions of ``skill``'s policy for this step and the ``H - 1`` next
+    (``H`` = 1 unless the policy predicts chunks; no clipping, no checks), computed on the policy's device."""
     policy = bundle.policy(skill)
     device = next(itertools.chain(policy.parameters(), policy.buffers()), torch.empty(0)).device
 
@@ -61,7 +63,8 @@ def policy_action(bundle: TrainedModels, skill: str, seen: PolicyInput) -> np.nd
         elif isinstance(policy, ToolConcatPolicy):
             action = policy(batch(seen.obs_points), batch(seen.goal_points), batch(seen.tool_state))
         else:
-            action = policy(batch(seen.obs_points), batch(seen.tool_points), batch(seen.goal_points))
+            phase = torch.tensor([seen.phase], dtype=torch.float32, device=device)
+            action = policy(batch(seen.obs_points), batch(seen.tool_points), batch(seen.goal_points), phase)
     return action.reshape(-1).double().cpu().numpy()
 
 

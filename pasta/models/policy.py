@@ -26,7 +26,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from pasta.config.schema import POLICY_ENCODERS
+from pasta.config.schema import POLICY_ENCODERS, POLICY_FRAMES
 from pasta.geometry.distances import chamfer_distance
 from pasta.models import random_draws
 from pasta.models.cloud_pointnet import CloudPointNet, CloudPointNetConfig
@@ -34,10 +34,12 @@ from pasta.models.layers import mlp, orthogonal_init_
 from pasta.models.pointnet import PointNetPlusPlusConfig, PointNetPlusPlusEncoder
 
 __all__ = [
+    "CENTRE_OFFSET_SCALE",
     "FilteredEntities",
     "PolicyConfig",
     "SetPolicy",
     "check_point_encoder",
+    "dough_frame",
     "encode_clouds",
     "filter_entities",
     "point_encoder",
@@ -90,6 +92,31 @@ def encode_clouds(encoder: PointNetPlusPlusEncoder | CloudPointNet, clouds: Sequ
     if isinstance(encoder, CloudPointNet):
         return encoder(*clouds)
     return encoder(*tag_point_roles(*clouds))
+
+
+CENTRE_OFFSET_SCALE = 10.0  # metres -> head inputs: offsets of 0.01-0.4 in the unit workspace become 0.1-4
+
+
+def dough_frame(obs_points: torch.Tensor, *clouds: torch.Tensor) -> tuple[list[torch.Tensor], torch.Tensor]:
+    """Express clouds in the observed dough's horizontal frame (``policy.frame: dough``).
+
+    Every cloud is shifted so that the observation's centre has x = z = 0 (heights stay absolute: the floor
+    is at a fixed height and matters to every skill); the offsets of the other clouds' centres from the
+    observation's, times ``CENTRE_OFFSET_SCALE``, are returned for the action head, so that where the goal
+    and the tool are relative to the dough is one subtraction away rather than something the max-pooled
+    features must encode.
+
+    Args:
+        obs_points: ``(B, N_o, 3)``.
+        clouds: further clouds ``(B, N_i, 3)`` (tool, goal).
+
+    Returns:
+        ``[obs, *clouds]`` shifted, and the offsets ``(B, 3 * len(clouds))``.
+    """
+    centre = obs_points.mean(dim=1, keepdim=True)
+    shift = centre * centre.new_tensor([1.0, 0.0, 1.0])
+    offsets = [(cloud.mean(dim=1) - centre[:, 0]) * CENTRE_OFFSET_SCALE for cloud in clouds]
+    return [obs_points - shift, *(cloud - shift for cloud in clouds)], torch.cat(offsets, dim=-1)
 
 
 def uniform_point_noise(points: torch.Tensor, amplitude: float, generator: torch.Generator | None) -> torch.Tensor:
@@ -147,6 +174,14 @@ class PolicyConfig:
         head_channels: hidden widths of the action MLP after the PointNet++ (``[512, 256]``).
         pointnet: the compact encoder and the widths of its action MLP.
         output_scale: the linear output is multiplied by this (official 1/5).
+        frame: ``world`` (the appendix's: clouds as observed) or ``dough`` (clouds shifted to the observed
+            dough's horizontal centre, and the tool's and goal's centre offsets fed to the action head:
+            ``dough_frame``); set from the task config's ``policy.frame``.
+        phase_input: the action head also reads the skill's phase, ``step / steps_per_skill`` in [0, 1) (the
+            scripted demonstrations are timed motions: approach, act, hold, withdraw); set from the task
+            config's ``policy.phase_input``.
+        chunk: actions predicted per call: this step's and the next ``chunk - 1`` (action chunking; the
+            executor acts them out before it asks again); set from the task config's ``policy.chunk``.
     """
 
     point_encoder: str = "pointnet2"
@@ -154,9 +189,16 @@ class PolicyConfig:
     head_channels: tuple[int, ...] = (512, 256)
     pointnet: CloudPointNetConfig = field(default_factory=CloudPointNetConfig)
     output_scale: float = 0.2
+    frame: str = "world"
+    phase_input: bool = False
+    chunk: int = 1
 
     def __post_init__(self) -> None:
         check_point_encoder(self.point_encoder)
+        if self.chunk < 1:
+            raise ValueError(f"a policy predicts at least one action per call, got chunk {self.chunk}")
+        if self.frame not in POLICY_FRAMES:
+            raise ValueError(f"unknown policy frame {self.frame!r}; known: {', '.join(POLICY_FRAMES)}")
 
     @property
     def action_head_channels(self) -> tuple[int, ...]:
@@ -165,7 +207,8 @@ class PolicyConfig:
 
 
 class SetPolicy(nn.Module):
-    """``(obs (B, N_o, 3), tool (B, N_t, 3), goal (B, N_g, 3))`` -> action ``(B, action_dim)``.
+    """``(obs (B, N_o, 3), tool (B, N_t, 3), goal (B, N_g, 3))`` -> actions ``(B, chunk * action_dim)``: this
+    step's action first, then the next ``chunk - 1`` steps' (``(B, action_dim)`` for the default chunk of 1).
 
     Orthogonal initialisation of the action head (official ``weight_init``); the PointNet++ keeps torch's,
     the compact encoder is orthogonal too.
@@ -176,9 +219,22 @@ class SetPolicy(nn.Module):
         self.config = config
         self.action_dim = action_dim
         self.encoder = point_encoder(config.point_encoder, config.encoder, config.pointnet, n_clouds=3)
-        self.head = mlp((self.encoder.out_dim, *config.action_head_channels, action_dim), final_activation=False)
+        extra = (6 if config.frame == "dough" else 0) + (1 if config.phase_input else 0)
+        self.head = mlp((self.encoder.out_dim + extra, *config.action_head_channels, action_dim * config.chunk),
+                        final_activation=False)
         orthogonal_init_(self.head)
 
-    def forward(self, obs_points: torch.Tensor, tool_points: torch.Tensor, goal_points: torch.Tensor) -> torch.Tensor:
-        features = encode_clouds(self.encoder, (obs_points, tool_points, goal_points))
-        return self.head(features) * self.config.output_scale
+    def forward(self, obs_points: torch.Tensor, tool_points: torch.Tensor, goal_points: torch.Tensor,
+                phase: torch.Tensor | None = None) -> torch.Tensor:
+        """Actions ``(B, chunk * action_dim)``; ``phase`` ``(B,)`` is required when ``config.phase_input``."""
+        if self.config.frame == "dough":
+            clouds, offsets = dough_frame(obs_points, tool_points, goal_points)
+            features = [encode_clouds(self.encoder, clouds), offsets.to(obs_points.dtype)]
+        else:
+            features = [encode_clouds(self.encoder, (obs_points, tool_points, goal_points))]
+        if self.config.phase_input:
+            if phase is None or phase.shape != (obs_points.shape[0],):
+                raise ValueError(f"this policy reads the skill's phase: need phase of shape ({obs_points.shape[0]},), "
+                                 f"got {None if phase is None else tuple(phase.shape)}")
+            features.append(phase.to(obs_points.dtype).unsqueeze(1))
+        return self.head(torch.cat(features, dim=-1)) * self.config.output_scale

@@ -86,6 +86,8 @@ class PolicySamples:
     goal_points: torch.Tensor  # (B, P, 3)
     tool_states: torch.Tensor  # (B, 8)
     actions: torch.Tensor  # (B, A)
+    action_chunks: torch.Tensor  # (B, H * A) the actions at t .. t + H - 1 (zeros after the last), H = chunk
+    phases: torch.Tensor  # (B,) step t of the sample over the trajectory's action count, in [0, 1)
     obs_ids: list[np.ndarray]
     goal_ids: list[np.ndarray]
 
@@ -114,12 +116,16 @@ class TransitionSampler:
         chamfer: shared memo of entity-pair distances.
         cloud_points: points of the policy samples' observation and goal clouds (default: the dataset's
             observation size, ``cfg.policy.points`` in training).
+        chunk: actions per policy sample's ``action_chunks`` (``cfg.policy.chunk`` in training).
     """
 
     def __init__(self, demos: Demonstrations, table: EntityTable, skills: tuple[SkillConfig, ...],
                  trajectories: np.ndarray, filter_epsilon: float, chamfer: PairChamfer,
-                 cloud_points: int | None = None) -> None:
+                 cloud_points: int | None = None, chunk: int = 1) -> None:
+        if chunk < 1:
+            raise ValueError(f"chunk must be >= 1, got {chunk}")
         self.demos, self.table, self.skills = demos, table, skills
+        self.chunk = chunk
         self.cloud_points = cloud_points or demos.points.shape[1]
         self.filter_epsilon = filter_epsilon
         self.chamfer = chamfer
@@ -199,9 +205,20 @@ class TransitionSampler:
             goal_points=torch.from_numpy(np.stack(goal_pts)),
             tool_states=torch.from_numpy(np.stack([self.demos.tool_states[i][t] for i, t in steps])),
             actions=torch.from_numpy(np.stack([self.demos.actions[i][t] for i, t in steps])),
+            action_chunks=torch.from_numpy(np.stack([self._chunk(i, t) for i, t in steps])),
+            phases=torch.tensor([t / len(self.demos.actions[i]) for i, t in steps], dtype=torch.float32),
             obs_ids=[pairs[j][0] for j in chosen],
             goal_ids=[pairs[j][1] for j in chosen],
         )
+
+    def _chunk(self, trajectory: int, t: int) -> np.ndarray:
+        """``(chunk * A,)`` the actions of ``trajectory`` from step ``t`` on, zeros after its last step (the
+        skill is over: the executor settles with zero actions)."""
+        actions = self.demos.actions[trajectory]
+        out = np.zeros((self.chunk, actions.shape[1]), dtype=np.float32)
+        ahead = actions[t : t + self.chunk]
+        out[: len(ahead)] = ahead
+        return out.reshape(-1)
 
     def cost_pairs(self, rows: np.ndarray, rng: np.random.Generator) -> CostPairs:
         """``2n`` pairs: aligned (entity at ``t``, entity of the target) and ``n`` randomly re-paired ones."""

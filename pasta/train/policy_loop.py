@@ -118,24 +118,28 @@ def policy_forward(policy: nn.Module, spec: VariantSpec, samples: PolicySamples,
     obs, tool, goal = clouds
     if spec.tool_state_after_encoder:
         return policy(obs, goal, samples.tool_states.to(device))
-    return policy(obs, tool, goal)
+    return policy(obs, tool, goal, samples.phases.to(device))
 
 
 def policy_loss(policy: nn.Module, spec: VariantSpec, settings: PolicySettings, samples: PolicySamples,
                 latents: torch.Tensor, latent_dim: int, generator: torch.Generator) -> torch.Tensor:
     """``L_pi``: the squared action error summed over the ``A`` dimensions, averaged over the ``B`` samples
-    (noisy inputs, model_spec §4.4); the forward pass in ``settings.precision``, the error in float32."""
+    (noisy inputs, model_spec §4.4) and over the ``H`` steps of the chunk a policy predicts (``H`` = 1 but for
+    a set policy with ``chunk`` > 1); the forward pass in ``settings.precision``, the error in float32."""
     with training_autocast(settings.precision, latents.device):
         predicted = policy_forward(policy, spec, samples, latents, latent_dim, settings, generator)
-    return (predicted.float() - samples.actions.to(latents.device)).square().sum(dim=1).mean()
+    steps = predicted.shape[1] // samples.actions.shape[1]
+    target = samples.action_chunks[:, : predicted.shape[1]].to(latents.device)
+    return (predicted.float() - target).square().sum(dim=1).mean() / steps
 
 
 def _predictions(policy: nn.Module, spec: VariantSpec, samples: PolicySamples, latents: torch.Tensor,
                  latent_dim: int) -> np.ndarray:
-    """Noise-free actions ``(B, A)`` of ``policy`` (eval mode, no gradient)."""
+    """Noise-free actions ``(B, A)`` of ``policy`` at the samples' own step (the first of a chunk; eval mode, no
+    gradient)."""
     policy.eval()
     with torch.no_grad():
-        return policy_forward(policy, spec, samples, latents, latent_dim).cpu().numpy()
+        return policy_forward(policy, spec, samples, latents, latent_dim)[:, : samples.actions.shape[1]].cpu().numpy()
 
 
 def heldout_mse(policy: nn.Module, spec: VariantSpec, samples: PolicySamples, latents: torch.Tensor,

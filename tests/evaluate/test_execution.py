@@ -27,11 +27,13 @@ class ScriptedOutputs(nn.Module):
         super().__init__()
         self.outputs = outputs
         self.calls = 0
+        self.phases: list[float] = []
 
-    def forward(self, obs_points, tool_points, goal_points):
-        assert obs_points.shape == (1, 1000, 3) and tool_points.shape == (1, 100, 3)
+    def forward(self, obs_points, tool_points, goal_points, phase):
+        assert obs_points.shape == (1, 1000, 3) and tool_points.shape == (1, 100, 3) and phase.shape == (1,)
         out = torch.tensor([self.outputs[min(self.calls, len(self.outputs) - 1)]])
         self.calls += 1
+        self.phases.append(float(phase))
         return out
 
 
@@ -119,6 +121,7 @@ def test_policy_execution_runs_the_policy_for_the_skill_budget(cfg, bundle, monk
     execute_plan(cfg, with_policies(bundle, policy), env, plan, "policy", np.random.default_rng(0))
     n = cfg.sim.steps_per_skill
     assert policy.calls == n
+    assert policy.phases == pytest.approx([k / n for k in range(n)])
     assert len(steps) == n + cfg.sim.settle_steps
     for taken, _, _ in steps[:n]:
         np.testing.assert_array_equal(taken, action)  # the policy's action reached the simulator
@@ -130,6 +133,22 @@ def test_policy_execution_runs_the_policy_for_the_skill_budget(cfg, bundle, monk
     np.testing.assert_allclose(np.array(end["knife"].pos) - np.array(start["knife"].pos), knife_action * scales * n,
                                rtol=1e-4, atol=1e-6)
     np.testing.assert_array_equal(end["gripper"].pos, start["gripper"].pos)  # only the knife was driven
+
+
+def test_a_chunking_policy_is_asked_once_per_chunk_and_its_actions_are_acted_out_in_order(cfg, bundle,
+                                                                                         monkeypatch):
+    env, plan = cut_plan(cfg, bundle)
+    first, second, third = (env.action_for("knife", np.array([v, 0.0, 0.0])) for v in (0.1, -0.2, 0.3))
+    policy = ScriptedOutputs([np.concatenate([first, second, third]).tolist()])  # chunks of 3 steps
+    taken = []
+    real_step = env.step
+    monkeypatch.setattr(env, "step", lambda action: (taken.append(np.array(action)), real_step(action))[1])
+    execute_plan(cfg, with_policies(bundle, policy), env, plan, "policy", np.random.default_rng(0))
+    n = cfg.sim.steps_per_skill
+    assert policy.calls == -(-n // 3)
+    assert policy.phases == pytest.approx([k / n for k in range(0, n, 3)])
+    for k in range(n):
+        np.testing.assert_array_equal(taken[k], (first, second, third)[k % 3])
 
 
 def test_a_step_whose_subgoal_is_already_reached_is_skipped(cfg, bundle):

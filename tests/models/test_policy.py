@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from pasta.models import PolicyConfig, SetPolicy, filter_entities, uniform_point_noise
-from pasta.models.policy import tag_point_roles
+from pasta.models.policy import CENTRE_OFFSET_SCALE, dough_frame, tag_point_roles
 from tests.models.synthetic import box_clouds, goal_offset_problem, tiny_encoder, train
 
 
@@ -75,3 +75,53 @@ def test_bf16_autocast_changes_the_default_policys_actions_by_under_two_percent(
     assert mixed.dtype == torch.bfloat16
     gap = float((mixed.float() - exact).norm() / exact.norm())
     assert 0 < gap < 0.02, gap
+
+
+def test_dough_frame_centres_the_observation_horizontally_and_returns_the_offsets():
+    gen = torch.Generator().manual_seed(4)
+    obs, tool, goal = box_clouds(2, 40, gen), box_clouds(2, 8, gen), box_clouds(2, 40, gen) + 0.2
+    (obs_c, tool_c, goal_c), offsets = dough_frame(obs, tool, goal)
+    centre = obs.mean(dim=1)
+    assert torch.allclose(obs_c.mean(dim=1)[:, [0, 2]], torch.zeros(2, 2), atol=1e-6)
+    assert torch.allclose(obs_c[..., 1], obs[..., 1])  # heights stay absolute
+    assert torch.allclose(goal_c - goal, obs_c - obs) and torch.allclose(tool_c[..., 1], tool[..., 1])
+    expected = torch.cat([tool.mean(1) - centre, goal.mean(1) - centre], dim=-1) * CENTRE_OFFSET_SCALE
+    assert offsets.shape == (2, 6) and torch.allclose(offsets, expected, atol=1e-6)
+
+
+@pytest.mark.parametrize("encoder", ["pointnet2", "pointnet"])
+def test_a_dough_frame_policy_ignores_where_the_scene_is_on_the_floor(encoder):
+    """``policy.frame: dough``: moving the whole scene horizontally leaves the action; lifting it does not.
+    The world-frame policy (same weights but the head's extra inputs) sees the move."""
+    gen = torch.Generator().manual_seed(5)
+    clouds = [0.4 + 0.2 * torch.rand(2, n, 3, generator=gen) for n in (64, 16, 64)]
+    moved = [c + torch.tensor([0.15, 0.0, -0.1]) for c in clouds]
+    lifted = [c + torch.tensor([0.0, 0.05, 0.0]) for c in clouds]
+    results = {}
+    for frame in ("dough", "world"):
+        torch.manual_seed(0)
+        policy = SetPolicy(4, PolicyConfig(point_encoder=encoder, frame=frame)).eval()
+        with torch.no_grad():
+            results[frame] = [policy(*c) for c in (clouds, moved, lifted)]
+    def gap(a, b):
+        return float((a - b).norm() / a.norm())
+
+    here, there, up = results["dough"]
+    assert gap(here, there) < 1e-5
+    assert gap(here, up) > 1e-3
+    assert gap(results["world"][0], results["world"][1]) > 1e-3
+
+
+def test_a_phase_policy_reads_the_phase_and_refuses_to_go_without_it():
+    torch.manual_seed(0)
+    policy = SetPolicy(4, PolicyConfig(point_encoder="pointnet", phase_input=True)).eval()
+    assert policy.head[0].in_features == policy.encoder.out_dim + 1
+    gen = torch.Generator().manual_seed(6)
+    clouds = [0.4 + 0.2 * torch.rand(2, n, 3, generator=gen) for n in (64, 16, 64)]
+    with torch.no_grad():
+        early, late = policy(*clouds, torch.zeros(2)), policy(*clouds, torch.full((2,), 0.9))
+    assert not torch.allclose(early, late, atol=1e-4)
+    with pytest.raises(ValueError, match="phase"):
+        policy(*clouds)
+    with pytest.raises(ValueError, match="frame"):
+        PolicyConfig(frame="tool")

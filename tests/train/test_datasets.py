@@ -70,6 +70,10 @@ def test_policy_samples_and_cost_pairs(cfg, training_data):
     assert samples is not None and len(samples) == 4
     assert samples.obs_points.shape == (4, POINTS, 3) and samples.tool_points.shape == (4, 20, 3)
     assert samples.actions.shape == (4, 10) and torch.all(samples.actions[:, :3] == 0)
+    for phase, action in zip(samples.phases.tolist(), samples.actions, strict=True):  # phase = t / actions
+        assert 0.0 <= phase < 1.0
+        assert any(np.array_equal(demos.actions[i][round(phase * len(demos.actions[i]))], action.numpy())
+                   for i in range(10) if demos.skill_index[i] == 1)
     pairs = sampler.cost_pairs(sampler.transitions[0][:6], rng)
     assert len(pairs.a) == 12
     sub = table.clouds[:, :200]
@@ -85,6 +89,25 @@ def test_policy_samples_and_cost_pairs(cfg, training_data):
 def test_missing_or_foreign_dataset_is_refused(cfg, tmp_path):
     with pytest.raises(DatasetError, match="index"):
         load_demonstrations(tmp_path, cfg)
+
+
+def test_policy_samples_carry_the_next_actions_zero_after_the_trajectory_ends(cfg, training_data):
+    demos, table = training_data.demos, training_data.table
+    sampler = TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table), chunk=3)
+    trajectory = int(np.flatnonzero(demos.skill_index[:10] == 1)[0])
+    last = len(demos.actions[trajectory]) - 1
+    rows = np.array([[trajectory, 0], [trajectory, last - 1], [trajectory, last]])
+    samples = sampler.policy_samples(1, rows, np.random.default_rng(0), limit=3)
+    assert samples is not None and len(samples) == 3
+    chunks = samples.action_chunks.numpy().reshape(3, 3, -1)
+    actions = demos.actions[trajectory]
+    np.testing.assert_array_equal(chunks[0], actions[:3])
+    np.testing.assert_array_equal(chunks[1], np.concatenate([actions[last - 1 :], np.zeros((1, actions.shape[1]))]))
+    np.testing.assert_array_equal(chunks[2, 0], actions[last])
+    assert not chunks[2, 1:].any()
+    np.testing.assert_array_equal(chunks[:, 0], samples.actions.numpy())
+    with pytest.raises(ValueError, match="chunk"):
+        TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table), chunk=0)
 
 
 def test_policy_samples_have_the_configured_number_of_points_drawn_from_the_same_pieces(cfg, training_data):

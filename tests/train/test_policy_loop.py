@@ -12,9 +12,12 @@ import numpy as np
 import pytest
 import torch
 
+from pasta.models import variant_spec
 from pasta.models.checkpoint import load_checkpoint
 from pasta.train import policy_loop
 from pasta.train.bundle import untrained
+from pasta.train.datasets import TransitionSampler
+from pasta.train.entities import PairChamfer
 from pasta.train.policy_loop import PolicySettings, lr_at, train_policies
 from tests.train.helpers import heads_inputs
 
@@ -174,3 +177,34 @@ def test_bf16_training_runs_the_policy_in_bfloat16_and_still_lowers_its_loss(tmp
 def test_an_unknown_precision_is_refused_by_name():
     with pytest.raises(ValueError, match="'fp16'"):
         dataclasses.replace(SETTINGS, precision="fp16")
+
+
+def test_a_chunking_policy_with_dough_frame_and_phase_fits_every_step_of_its_chunks(tmp_path, cfg, training_data):
+    """``policy.chunk: 3``, ``frame: dough``, ``phase_input``: the loss compares all three predicted steps with
+    the demonstrated ones (a loss over the first step alone would leave the other outputs where they started),
+    and the held-out MSE is that of the first."""
+    config, _, latents, prior, _, _ = heads_inputs(cfg, training_data, "pasta")
+    cfg = cfg.model_copy(update={"policy": cfg.policy.model_copy(update={"frame": "dough", "phase_input": True,
+                                                                         "chunk": 3})})
+    bundle = untrained(cfg, "pasta", prior, model_config=config, seed=0)
+    assert bundle.model_config.policy.chunk == 3 and bundle.model_config.policy.frame == "dough"
+    sampler = TransitionSampler(training_data.demos, training_data.table, cfg.skills, training_data.heads_train,
+                                0.0, PairChamfer(training_data.table), chunk=3)
+    rows = sampler.transitions[0]
+    held_out = [sampler.policy_samples(k, sampler.transitions[k], np.random.default_rng(0), 8) for k in range(2)]
+    samples = held_out[0]
+
+    def later_steps_error() -> float:
+        with torch.no_grad():
+            predicted = policy_loop.policy_forward(bundle.models["policy"][0].eval(), variant_spec("pasta"), samples,
+                                                   latents, 2)
+        assert predicted.shape == (len(samples), 3 * bundle.action_dim) and len(rows)
+        return float((predicted[:, bundle.action_dim :] - samples.action_chunks[:, bundle.action_dim :]).square()
+                     .sum(1).mean())
+
+    before = later_steps_error()
+    settings = dataclasses.replace(SETTINGS, steps=30, eval_every=30)
+    result = train_policies(bundle, sampler, held_out, latents, settings, tmp_path / "p.pt")
+    assert later_steps_error() < 0.7 * before
+    first = policy_loop.heldout_mse(bundle.models["policy"][0], variant_spec("pasta"), samples, latents, 2)
+    assert first == pytest.approx(result.curve[-1][1]["policy_heldout_mse_cut"], rel=1e-5)
