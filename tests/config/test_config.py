@@ -412,6 +412,17 @@ def test_other_invalid_values_are_config_errors():
 
 
 @pytest.mark.parametrize("profile", PROFILE_NAMES)
+def test_small_policy_chunks_in_the_dough_frame_and_the_others_keep_the_appendixs(profile):
+    policy = load("CutRearrange", profile).policy
+    expected = ("dough", True, 10) if profile == "small" else ("world", False, 1)
+    assert (policy.frame, policy.phase_input, policy.chunk) == expected
+    with pytest.raises(ConfigError, match=r"policy\.frame = 'tool'"):
+        load("CutRearrange", profile, ["policy.frame=tool"])
+    with pytest.raises(ConfigError, match=r"policy\.chunk"):
+        load("CutRearrange", profile, ["policy.chunk=0"])
+
+
+@pytest.mark.parametrize("profile", PROFILE_NAMES)
 def test_policy_encoder_defaults_to_pointnet2_but_small_and_refuses_unknown_names(profile):
     assert load("CRS", profile).policy.encoder == ("pointnet" if profile == "small" else "pointnet2")
     assert load("CRS", profile, ["policy.encoder=pointnet2"]).policy.encoder == "pointnet2"
