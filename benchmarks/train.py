@@ -2,21 +2,29 @@
 
 Each measurement runs a few Adam steps of one network at the paper's sizes (default ``ModelConfig``,
 Table 3 batch sizes) on random inputs, in its own process on ``--threads`` torch threads (default 2),
-so peak memory is that model's alone. Prints a table and writes JSON to
-``benchmarks/results/train[_quick].json``.
+so peak memory is that model's alone, once per ``--precision`` (``train.precision``: ``bf16`` runs the
+forward pass under the training loops' autocast). Beside them, the same threads' matrix-multiply rate
+(GFLOP/s of a 1024 x 1024 product, float32 and bfloat16) says what the machine can do at all. Prints a
+table with the load average before and after and writes JSON to ``benchmarks/results/train[_quick].json``.
 
     python benchmarks/train.py            # 5 timed steps per model
     python benchmarks/train.py --quick    # 2 timed steps per model
+    python benchmarks/train.py --models policy,vae --precision fp32,bf16
     python benchmarks/train.py --device cuda   # on a GPU (writes train_cuda.json; peak GPU memory too)
 """
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from pasta.data.storage import atomic_write_bytes  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MODELS = ("vae", "feasibility", "cost", "policy", "tool_concat_policy", "shared_encoder_policy")
@@ -27,11 +35,17 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def build_step(name: str, device: str = "cpu"):
-    """``(step, samples per step, what a sample is)`` for one model; ``step()`` runs one Adam step."""
+def load_average() -> list[float]:
+    return [round(value, 2) for value in os.getloadavg()]
+
+
+def build_step(name: str, device: str = "cpu", precision: str = "fp32"):
+    """``(step, samples per step, what a sample is)`` for one model; ``step()`` runs one Adam step with the
+    forward pass in ``precision``."""
     import torch
 
     from pasta.models import LatentPrior, ModelConfig, build_models, feasibility_batch, weighted_mse
+    from pasta.train.precision import training_autocast
 
     generator = torch.Generator().manual_seed(0)
     variant = {"tool_concat_policy": "tool_concat_policy", "shared_encoder_policy": "shared_encoder_policy"}.get(
@@ -89,14 +103,36 @@ def build_step(name: str, device: str = "cpu"):
 
     def step() -> None:
         optimiser.zero_grad(set_to_none=True)
-        loss().backward()
+        with training_autocast(precision, torch.device(device)):
+            value = loss()
+        value.float().backward()
         optimiser.step()
     return step, samples, unit
 
 
-def measure(name: str, steps: int, threads: int, device: str = "cpu") -> dict:
+def matmul_rate(threads: int, dtype_name: str, device: str = "cpu", size: int = 1024, repeats: int = 20) -> float:
+    """GFLOP/s of ``size x size`` matrix products in ``dtype_name`` (``fp32`` or ``bf16``) on ``threads``."""
     import torch
 
+    torch.set_num_threads(threads)
+    dtype = torch.bfloat16 if dtype_name == "bf16" else torch.float32
+    a = torch.rand(size, size, device=device).to(dtype)
+    b = torch.rand(size, size, device=device).to(dtype)
+    a @ b  # warm-up
+    start = time.perf_counter()
+    for _ in range(repeats):
+        a @ b
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+    return 2 * size**3 * repeats / (time.perf_counter() - start) / 1e9
+
+
+def measure(name: str, steps: int, threads: int, device: str = "cpu", precision: str = "fp32") -> dict:
+    import torch
+
+    if name == "matmul":
+        return {"model": "matmul", "precision": precision, "threads": threads,
+                "gflop_per_s": matmul_rate(threads, precision, device)}
     torch.set_num_threads(threads)
     cuda = device.startswith("cuda")
 
@@ -105,7 +141,7 @@ def measure(name: str, steps: int, threads: int, device: str = "cpu") -> dict:
             torch.cuda.synchronize()
 
     baseline = peak_rss_mb()
-    step, samples, unit = build_step(name, device)
+    step, samples, unit = build_step(name, device, precision)
     step()  # warm-up
     sync()
     start = time.perf_counter()
@@ -113,7 +149,8 @@ def measure(name: str, steps: int, threads: int, device: str = "cpu") -> dict:
         step()
     sync()
     seconds = (time.perf_counter() - start) / steps
-    return {"model": name, "device": device, "threads": threads, "steps": steps, "s_per_step": seconds,
+    return {"model": name, "precision": precision, "device": device, "threads": threads, "steps": steps,
+            "s_per_step": seconds,
             "samples_per_step": samples, "samples_per_s": samples / seconds, "sample": unit,
             "rss_before_mb": baseline, "peak_rss_mb": peak_rss_mb(),
             "peak_gpu_mb": torch.cuda.max_memory_allocated() / 2**20 if cuda else None}
@@ -124,31 +161,52 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="2 timed steps per model instead of 5")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
-    parser.add_argument("--child", nargs=3, metavar=("MODEL", "STEPS", "THREADS"), help=argparse.SUPPRESS)
+    parser.add_argument("--models", default=",".join(MODELS), help="comma-separated subset of " + ", ".join(MODELS))
+    parser.add_argument("--precision", default="fp32,bf16", help="comma-separated: fp32, bf16")
+    parser.add_argument("--child", nargs=4, metavar=("MODEL", "STEPS", "THREADS", "PRECISION"),
+                        help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        print(json.dumps(measure(args.child[0], int(args.child[1]), int(args.child[2]), args.device)))
+        name, steps, threads, precision = args.child
+        print(json.dumps(measure(name, int(steps), int(threads), args.device, precision)))
         return
+    models = [m for m in args.models.split(",") if m]
+    precisions = [p for p in args.precision.split(",") if p]
+    for value, known, what in ((models, MODELS, "model"), (precisions, ("fp32", "bf16"), "precision")):
+        unknown = sorted(set(value) - set(known))
+        if unknown:
+            parser.error(f"unknown {what} {unknown}; known: {', '.join(known)}")
     steps = 2 if args.quick else 5
-    rows = []
-    for name in MODELS:
-        out = subprocess.run([sys.executable, __file__, "--child", name, str(steps), str(args.threads),
-                              "--device", args.device],
-                             capture_output=True, text=True, check=True)
-        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
-        print(f"measured {name}", file=sys.stderr)
-    print(f"\n{args.device}, {args.threads} torch threads, {steps} timed steps per model\n")
-    print("| model | s/step | samples/step | samples/s | peak RSS MB (before build) | peak GPU MB | sample |")
-    print("|---|---|---|---|---|---|---|")
+    load_before = load_average()
+    rows, reference = [], {}
+    for precision in precisions:
+        out = subprocess.run([sys.executable, __file__, "--child", "matmul", "0", str(args.threads), precision,
+                              "--device", args.device], capture_output=True, text=True, check=True)
+        reference[precision] = json.loads(out.stdout.strip().splitlines()[-1])["gflop_per_s"]
+        for name in models:
+            out = subprocess.run([sys.executable, __file__, "--child", name, str(steps), str(args.threads), precision,
+                                  "--device", args.device], capture_output=True, text=True, check=True)
+            rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+            print(f"measured {name} {precision}", file=sys.stderr)
+    load_after = load_average()
+    print(f"\n{args.device}, {args.threads} torch threads, {steps} timed steps per model, {os.cpu_count()} CPUs, "
+          f"load average {load_before} -> {load_after}")
+    print("matmul 1024^3: " + ", ".join(f"{p} {g:.0f} GFLOP/s" for p, g in reference.items()) + "\n")
+    print("| model | precision | s/step | samples/step | samples/s | peak RSS MB (before build) | peak GPU MB "
+          "| sample |")
+    print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         gpu = "—" if r["peak_gpu_mb"] is None else f"{r['peak_gpu_mb']:.0f}"
-        print(f"| {r['model']} | {r['s_per_step']:.3f} | {r['samples_per_step']} | {r['samples_per_s']:.1f} "
-              f"| {r['peak_rss_mb']:.0f} ({r['rss_before_mb']:.0f}) | {gpu} | {r['sample']} |")
+        print(f"| {r['model']} | {r['precision']} | {r['s_per_step']:.3f} | {r['samples_per_step']} "
+              f"| {r['samples_per_s']:.1f} | {r['peak_rss_mb']:.0f} ({r['rss_before_mb']:.0f}) | {gpu} "
+              f"| {r['sample']} |")
     RESULTS.mkdir(exist_ok=True)
     suffix = ("_quick" if args.quick else "") + ("" if args.device == "cpu" else "_" + args.device.split(":")[0])
     path = RESULTS / f"train{suffix}.json"
-    path.write_text(json.dumps({"threads": args.threads, "device": args.device, "steps": steps, "rows": rows},
-                               indent=1))
+    payload = {"threads": args.threads, "device": args.device, "steps": steps, "cpu_count": os.cpu_count(),
+               "load_before": load_before, "load_after": load_after, "matmul_gflop_per_s": reference, "rows": rows}
+    data = json.dumps(payload, indent=1).encode()
+    atomic_write_bytes(path, lambda handle: handle.write(data))
     print(f"\nwrote {path}")
 
 
