@@ -6,8 +6,9 @@
    ``flat3d``) and kept under ``$PASTA_HOME/checkpoints/<task>/<profile>/vae-<key>/vae.pt``; the key hashes
    the VAE settings and the dataset index, so every variant reuses it and a changed dataset retrains it.
 2. The feasibility and cost heads of the variant train on the frozen VAE's cached latents (eq. 6), then its
-   policies in their own loop (a step budget per skill, early stopping on held-out action MSE); the
-   finished bundle is ``checkpoint_dir(task, profile, variant)/models.pt``.
+   policies in their own loop (a step budget per skill, early stopping on held-out action MSE), then, with
+   ``train.dagger_rounds``, DAgger rounds that simulate the policies on fresh problems in this thread
+   (``pasta.train.dagger``); the finished bundle is ``checkpoint_dir(task, profile, variant)/models.pt``.
 
 Every stage checkpoints after every epoch (the policies after every evaluation) and resumes from there, so a
 rerun after an interruption continues where it stopped. Training is torch only, so it runs in the flow's
@@ -35,6 +36,7 @@ from pasta.config.schema import TaskConfig
 from pasta.models import ModelConfig, variant_spec
 from pasta.paths import checkpoint_dir, data_dir
 from pasta.train.bundle import save_trained
+from pasta.train.dagger import dagger_metrics
 from pasta.train.datasets import vae_clouds
 from pasta.train.device import training_device
 from pasta.train.figures import latent_grid_figure, reconstruction_figure
@@ -139,11 +141,21 @@ def train(task_name: str, profile: str = "smoke", variant: str = "pasta", method
         bars.finish("policy", policy_status(heads.metrics, heads.policy.steps))
         logger.backfill("heads", enumerate(heads.history))
         logger.backfill("policy", heads.policy.curve)
+        for r, result in enumerate(heads.dagger):
+            offset = cfg.train.policy_steps + r * cfg.train.dagger_steps
+            logger.backfill("dagger", ((offset + step, {**dagger_metrics(metrics), "dagger_round": float(r + 1)})
+                                       for step, metrics in result.curve))
+        if heads.dagger:
+            mse = heads.metrics.get("policy_mse")
+            shown = "" if mse is None else f", held-out policy MSE {mse:.4g}"
+            bars.finish("dagger", f"{len(heads.dagger)} rounds{shown}")
         bundle_path = variant_folder / BUNDLE_FILE
         save_trained(bundle_path, heads.bundle, epoch=len(heads.history), extra={"vae_key": key})
         summary = {"vae_heldout_chamfer": vae.heldout_chamfer, **{k: heads.metrics[k] for k in FINAL_METRICS
                                                                   if k in heads.metrics},
                    **heads.policy.metrics()}
+        if heads.dagger:
+            summary["dagger_rounds"] = float(len(heads.dagger))
         summary["wall_s"] = time.perf_counter() - started
         tracking.log_metrics(summary)
         heldout = vae_clouds(data.demos, data.table, data.vae_heldout)
@@ -162,10 +174,13 @@ def train(task_name: str, profile: str = "smoke", variant: str = "pasta", method
 
 def epoch_bars(cfg: TaskConfig, variant: str, then: EpochLogger) -> EpochBars:
     """Progress bars over the VAE's and the heads' epochs and the policies' steps that pass each on to ``then``."""
-    return EpochBars({"vae": f"{cfg.task} VAE", "heads": f"{cfg.task} heads ({variant})",
-                      "policy": f"{cfg.task} policies ({variant})"},
-                     {"vae": cfg.train.vae_epochs, "heads": cfg.train.epochs, "policy": cfg.train.policy_steps},
-                     then=then)
+    labels = {"vae": f"{cfg.task} VAE", "heads": f"{cfg.task} heads ({variant})",
+              "policy": f"{cfg.task} policies ({variant})"}
+    totals = {"vae": cfg.train.vae_epochs, "heads": cfg.train.epochs, "policy": cfg.train.policy_steps}
+    if cfg.train.dagger_rounds:
+        labels["dagger"] = f"{cfg.task} DAgger ({cfg.train.dagger_rounds} rounds)"
+        totals["dagger"] = cfg.train.policy_steps + cfg.train.dagger_rounds * cfg.train.dagger_steps
+    return EpochBars(labels, totals, then=then)
 
 
 def policy_status(metrics: Mapping[str, float], steps: Mapping[str, int]) -> str:

@@ -246,6 +246,16 @@ class TrainConfig(Frozen):
     policy_lr_schedule: Literal["cosine", "constant"] = "cosine"
     policy_eval_every: int = Field(ge=1)
     policy_patience: int | None = Field(default=None, ge=1)
+    # DAgger rounds after the policies' own loop (pasta/train/dagger.py; 0: none, the appendix's behaviour
+    # cloning alone): each runs the oracle chains of dagger_problems fresh problems with the current policies
+    # (the expert's action chunk instead at a share dagger_expert_share of the calls), labels every visited
+    # step with the scripted skill tracked from the tool's pose, and trains the policies dagger_steps more
+    # steps from dagger_lr (policy_lr_schedule) on the demonstrations and all visits so far.
+    dagger_rounds: int = Field(default=0, ge=0)
+    dagger_problems: int = Field(default=20, ge=1)
+    dagger_expert_share: float = Field(default=0.3, ge=0, le=1)
+    dagger_steps: int = Field(default=200, ge=1)
+    dagger_lr: float = Field(default=5e-4, gt=0)
     # The forward passes of VAE and policy training: "fp32", or "bf16" autocast (float32 weights, bfloat16
     # matrix products; pasta/train/precision.py). The heads are small enough that fp32 costs nothing.
     precision: Literal["fp32", "bf16"] = "fp32"

@@ -42,7 +42,7 @@ if TYPE_CHECKING:
     from pasta.plan.result import Plan
 
 __all__ = ["EXECUTORS", "SKIP_CHAMFER", "Execution", "StepRecord", "already_reached", "check_executor", "decode_set",
-           "execute_plan", "park_tool", "run_skill"]
+           "execute_plan", "park_tool", "policy_view", "run_skill"]
 
 EXECUTORS = ("policy", "scripted")
 SKIP_CHAMFER = 1e-3  # official exec_threshold: the dough already is the subgoal (squared Chamfer units)
@@ -128,23 +128,29 @@ def already_reached(points: np.ndarray, labels: np.ndarray, subgoal_points: np.n
     return float(gap) < SKIP_CHAMFER
 
 
+def policy_view(env: DoughEnv, tool: str, indices: np.ndarray, goal_points: np.ndarray, goal_latents: torch.Tensor,
+                step: int, rng: np.random.Generator) -> PolicyInput:
+    """What a skill's policy sees at ``step`` of the skill: the dough at the frozen observation ``indices``
+    resampled to ``cfg.policy.points``, the tool's points and state, the ``goal_points`` (already resampled once
+    per skill, as training builds its goal cloud) and the phase ``step / steps_per_skill``."""
+    obs = env.observation()
+    return PolicyInput(
+        obs_points=resample(obs.dough_points[indices], env.cfg.policy.points, rng),
+        tool_points=obs.tool_points[tool],
+        tool_state=obs.tool_states[env.tool_names.index(tool)],
+        goal_points=goal_points,
+        goal_latents=goal_latents,
+        phase=step / env.cfg.sim.steps_per_skill,
+    )
+
+
 def _run_policy(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, plan_step: int, indices: np.ndarray,
                 goal_points: np.ndarray, goal_latents: torch.Tensor, rng: np.random.Generator) -> None:
-    tool_row, n_points = env.tool_names.index(tool), env.cfg.policy.points
-    goal_points = resample(goal_points, n_points, rng)  # one cloud of the new subgoals, as in training
-    n_steps = env.cfg.sim.steps_per_skill
+    goal_points = resample(goal_points, env.cfg.policy.points, rng)  # one cloud of the new subgoals, as in training
     chunk = np.zeros((0, env.action_dim))
-    for k in range(n_steps):
+    for k in range(env.cfg.sim.steps_per_skill):
         if len(chunk) == 0:  # ask the policy; a chunking policy answers for several steps
-            obs = env.observation()
-            seen = PolicyInput(
-                obs_points=resample(obs.dough_points[indices], n_points, rng),
-                tool_points=obs.tool_points[tool],
-                tool_state=obs.tool_states[tool_row],
-                goal_points=goal_points,
-                goal_latents=goal_latents,
-                phase=k / n_steps,
-            )
+            seen = policy_view(env, tool, indices, goal_points, goal_latents, k, rng)
             chunk = policy_action(bundle, skill, seen).reshape(-1, env.action_dim)
         env.step(checked_action(chunk[0], skill, plan_step, k))
         chunk = chunk[1:]

@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from pasta.config.schema import TaskConfig
 from pasta.data.configurations import OracleStep
@@ -32,8 +33,8 @@ from pasta.evaluate.execution import Execution, StepRecord, check_executor, park
 from pasta.sim.envs.base import DoughEnv
 from pasta.train.bundle import TrainedModels
 
-__all__ = ["PLAN_SOURCES", "OracleExecution", "attended_components", "check_plan_source", "execute_oracle",
-           "needs_models"]
+__all__ = ["PLAN_SOURCES", "OracleExecution", "OracleStepInputs", "attended_components", "check_plan_source",
+           "execute_oracle", "needs_models", "oracle_step_inputs"]
 
 PLAN_SOURCES = ("learned", "oracle")
 
@@ -66,6 +67,46 @@ def attended_components(labels: np.ndarray, acted: np.ndarray) -> tuple[int, ...
     return majority or tuple(int(k) for k in components)
 
 
+@dataclass(frozen=True, eq=False)
+class OracleStepInputs:
+    """What one oracle step hands its skill, read from the current observation.
+
+    Attributes:
+        attended: the DBSCAN components of the observation it acts on.
+        mask: ``(P,)`` bool over the observation points: those components.
+        subgoal: ``(P, 3)`` the whole next stage (the scripted skills' target).
+        new_points: ``(R, 3)`` the acted particles' places in the next stage.
+        goal_points: what the policy sees as its goal: ``new_points`` split into entities and stacked
+            ``(K * ENTITY_POINTS, 3)`` when a ``bundle`` encoded them, else ``new_points``.
+        goal_latents: ``(K, D_z + 3)`` their latents (None without a ``bundle``).
+    """
+
+    attended: tuple[int, ...]
+    mask: np.ndarray
+    subgoal: np.ndarray
+    new_points: np.ndarray
+    goal_points: np.ndarray
+    goal_latents: torch.Tensor | None
+
+
+def oracle_step_inputs(cfg: TaskConfig, env: DoughEnv, step: OracleStep, bundle: TrainedModels | None,
+                       rng: np.random.Generator) -> OracleStepInputs:
+    """The attention and the goals of oracle ``step`` at the environment's current state; with a ``bundle`` the
+    new subgoals are encoded by its VAE, as the policy executor needs them."""
+    m = cfg.sim.observation_points
+    points = np.asarray(env.observation().dough_points)
+    acted = np.asarray(step.acted[:m], dtype=bool)
+    labels = segment(cfg, points)
+    attended = attended_components(labels, acted)
+    subgoal = np.asarray(step.subgoal[:m], dtype=np.float32)
+    new_points = subgoal[acted]
+    goal_latents, goal_points = None, new_points
+    if bundle is not None:
+        encoded = encode_scene(cfg, bundle, new_points, rng)
+        goal_latents, goal_points = encoded.latents, encoded.entities.reshape(-1, 3)
+    return OracleStepInputs(attended, np.isin(labels, attended), subgoal, new_points, goal_points, goal_latents)
+
+
 def execute_oracle(cfg: TaskConfig, env: DoughEnv, chain: Sequence[OracleStep], executor: str,
                    bundle: TrainedModels | None, rng: np.random.Generator) -> OracleExecution:
     """Execute the ground-truth ``chain`` from the environment's current (settled) state.
@@ -75,25 +116,16 @@ def execute_oracle(cfg: TaskConfig, env: DoughEnv, chain: Sequence[OracleStep], 
     A step whose simulation blows up stops the execution; its ``failure`` names the step and the value.
     """
     check_executor(executor)
-    m = cfg.sim.observation_points
     records: list[StepRecord] = []
     attention: list[tuple[int, ...]] = []
     for h, step in enumerate(chain, start=1):
-        points = np.asarray(env.observation().dough_points)
-        acted = np.asarray(step.acted[:m], dtype=bool)
-        labels = segment(cfg, points)
-        attended = attended_components(labels, acted)
-        attention.append(attended)
-        mask = np.isin(labels, attended)
-        subgoal = np.asarray(step.subgoal[:m], dtype=np.float32)
-        new_points = subgoal[acted]
-        goal_latents, goal_points = None, new_points
-        if executor == "policy":
-            encoded = encode_scene(cfg, bundle, new_points, rng)
-            goal_latents, goal_points = encoded.latents, encoded.entities.reshape(-1, 3)
-        failure = run_skill(env, bundle, step.skill, h, mask, subgoal, executor, goal_points, goal_latents, rng)
+        inputs = oracle_step_inputs(cfg, env, step, bundle if executor == "policy" else None, rng)
+        attention.append(inputs.attended)
+        failure = run_skill(env, bundle, step.skill, h, inputs.mask, inputs.subgoal, executor, inputs.goal_points,
+                            inputs.goal_latents, rng)
         if failure is not None:
             return OracleExecution(Execution(tuple(records), env.observation(), failure), tuple(attention))
         tool = skill_tool(cfg, step.skill).name
-        records.append(StepRecord(step.skill, subgoal, new_points, mask, False, park_tool(env, tool)))
+        records.append(StepRecord(step.skill, inputs.subgoal, inputs.new_points, inputs.mask, False,
+                                  park_tool(env, tool)))
     return OracleExecution(Execution(tuple(records), env.observation()), tuple(attention))

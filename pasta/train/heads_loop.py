@@ -38,6 +38,7 @@ from pasta.models.model_config import ModelConfig
 from pasta.models.vae import PointCloudVAE
 from pasta.models.variants import variant_spec
 from pasta.train.bundle import TrainedModels, save_trained, untrained
+from pasta.train.dagger import DaggerSettings, dagger_rounds
 from pasta.train.datasets import PolicySamples, TransitionSampler, pad_sets
 from pasta.train.metrics import r_squared, roc_auc
 from pasta.train.policy_loop import (
@@ -164,12 +165,13 @@ def evaluate_abstraction(bundle: TrainedModels, held_out: HeldOut, *, hard_copie
 @dataclass(frozen=True, eq=False)
 class HeadsResult:
     """The trained bundle (heads of the last epoch, policies' best weights), its held-out metrics, the heads'
-    per-epoch history and the policies' result (steps, curve)."""
+    per-epoch history, the policies' result (steps, curve) and each DAgger round's (none without rounds)."""
 
     bundle: TrainedModels
     metrics: dict[str, float]
     history: list[dict[str, float]]
     policy: PolicyResult
+    dagger: tuple[PolicyResult, ...] = ()
 
 
 def _optimiser(bundle: TrainedModels, settings: HeadsSettings) -> torch.optim.Adam:
@@ -275,12 +277,15 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
         checkpoint_path: the heads' progress file (``save_trained``), rewritten after every epoch.
         model_config: network sizes (default ``ModelConfig()``).
         on_epoch: ``on_epoch("heads", epoch, metrics)`` after each epoch's checkpoint, then
-            ``on_epoch("policy", steps, metrics)`` after each policy evaluation (``train_policies``).
+            ``on_epoch("policy", steps, metrics)`` after each policy evaluation (``train_policies``) and, with
+            ``cfg.train.dagger_rounds``, ``on_epoch("dagger", steps, metrics)`` after each evaluation of the
+            DAgger rounds (``pasta.train.dagger.dagger_rounds``; they run on the CPU, in this thread, and simulate).
         device: where to train (default: where ``latents`` are).
 
     Returns:
         The bundle on the CPU; its metrics: the last epoch's, the policies' pooled held-out MSE with the kept
-        weights (``evaluate_policies``) and each skill's steps (``PolicyResult.metrics``).
+        weights (``evaluate_policies``, after the DAgger rounds if any) and each skill's steps of behaviour
+        cloning (``PolicyResult.metrics``).
     """
     device = device or latents.device
     latents = latents.to(device)
@@ -293,6 +298,13 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
     history = _fit_abstraction(bundle, train_sampler, held_out, latents, settings, path, on_epoch)
     policy = train_policies(bundle, train_sampler, held_out.policy, latents, settings.policy,
                             policy_progress_path(path), on_epoch=on_epoch)
+    dagger, rounds = DaggerSettings.from_config(cfg), []
+    if dagger.rounds:
+        rounds = dagger_rounds(cfg, bundle.to("cpu"), train_sampler, held_out.policy, latents.cpu(), settings.policy,
+                               dagger, path.with_suffix(""), first_step=settings.policy.steps, on_epoch=on_epoch)
+        bundle.to(device)
     bundle.eval()
     metrics = {**history[-1], **evaluate_policies(bundle, held_out.policy, latents), **policy.metrics()}
-    return HeadsResult(bundle.to("cpu"), metrics, history, policy)
+    if dagger.rounds:
+        metrics["dagger_rounds"] = float(dagger.rounds)
+    return HeadsResult(bundle.to("cpu"), metrics, history, policy, tuple(rounds))

@@ -40,6 +40,7 @@ from pasta.train.datasets import PolicySamples, TransitionSampler, pad_sets
 from pasta.train.metrics import action_mse
 from pasta.train.precision import check_precision, training_autocast
 from pasta.train.progress import EpochCallback, epoch_generators
+from pasta.train.visits import VisitPool, concat_samples
 
 __all__ = ["PolicyResult", "PolicySettings", "evaluate_policies", "heldout_mse", "lr_at", "policy_forward",
            "policy_loss", "policy_progress_path", "train_policies"]
@@ -203,8 +204,9 @@ def _batch_rows(sampler: TransitionSampler, k: int, order: np.ndarray, step_in_r
 
 def _train_round(bundle: TrainedModels, settings: PolicySettings, sampler: TransitionSampler,
                  latents: torch.Tensor, skills: list[SkillProgress], optimiser: torch.optim.Optimizer,
-                 first_step: int, n_steps: int) -> dict[int, float]:
-    """Steps ``first_step .. first_step + n_steps - 1`` for every unfinished skill; their mean losses."""
+                 first_step: int, n_steps: int, visits: VisitPool | None) -> dict[int, float]:
+    """Steps ``first_step .. first_step + n_steps - 1`` for every unfinished skill; their mean losses. With
+    ``visits``, each skill's batch also gets ``batch_size`` of its visited states."""
     spec, policies, latent_dim = variant_spec(bundle.variant), bundle.models["policy"], bundle.prior.latent_dim
     rng, generator = epoch_generators(settings.seed, first_step // settings.eval_every, latents.device)
     active = [k for k, skill in enumerate(skills) if not skill.done]
@@ -218,6 +220,9 @@ def _train_round(bundle: TrainedModels, settings: PolicySettings, sampler: Trans
         for k in active:
             samples = sampler.policy_samples(k, _batch_rows(sampler, k, orders[k], j, settings.batch_size), rng,
                                              settings.batch_size)
+            visited = None if visits is None else visits.draw(k, settings.batch_size, rng)
+            if visited is not None:
+                samples = visited if samples is None else concat_samples([samples, visited])
             if samples is None:
                 continue
             loss = policy_loss(policies[k], spec, settings, samples, latents, latent_dim, generator)
@@ -277,7 +282,7 @@ def _save_progress(path: Path, policies: nn.ModuleList, best: nn.ModuleList, opt
 
 def train_policies(bundle: TrainedModels, sampler: TransitionSampler, held_out: list[PolicySamples | None],
                    latents: torch.Tensor, settings: PolicySettings, checkpoint_path: str | Path, *,
-                   on_epoch: EpochCallback | None = None) -> PolicyResult:
+                   visits: VisitPool | None = None, on_epoch: EpochCallback | None = None) -> PolicyResult:
     """Train ``bundle``'s policies in place on ``latents``' device; resume from ``checkpoint_path``.
 
     Args:
@@ -287,6 +292,8 @@ def train_policies(bundle: TrainedModels, sampler: TransitionSampler, held_out: 
         latents: every entity's latent ``(N, E)`` (the latent-set policy's input).
         settings: budget, schedule, early stopping and input noise.
         checkpoint_path: progress file, rewritten after every round.
+        visits: states the policies visited with their expert labels (DAgger, :mod:`pasta.train.dagger`), drawn
+            into every batch beside the demonstrations' samples; ``held_out`` should then hold some too.
         on_epoch: ``on_epoch("policy", steps, metrics)`` after each evaluation (``steps`` taken so far, 0 for
             the untrained policies), once it is checkpointed.
 
@@ -315,7 +322,7 @@ def train_policies(bundle: TrainedModels, sampler: TransitionSampler, held_out: 
     while step < settings.steps and not all(skill.done for skill in skills):
         started = time.perf_counter()
         n_steps = min(settings.eval_every, settings.steps - step)
-        losses = _train_round(bundle, settings, sampler, latents, skills, optimiser, step, n_steps)
+        losses = _train_round(bundle, settings, sampler, latents, skills, optimiser, step, n_steps, visits)
         step += n_steps
         mse = _evaluate_round(bundle, best, held_out, latents, skills, step, settings.patience)
         metrics = _round_metrics(bundle.skill_names, losses, mse, lr_at(step - 1, settings))

@@ -21,8 +21,9 @@ EpochCallback = Callable[[str, int, dict[str, float]], None]
 """``on_epoch(stage, epoch, metrics)``: called after each finished (and checkpointed) epoch, ``epoch`` from 0;
 for the stages of ``STEP_STAGES``, after each evaluation, ``epoch`` being the gradient steps taken so far."""
 
-STEP_STAGES = frozenset({"policy"})
-"""Stages that count gradient steps instead of epochs (the policies' own loop, ``policy_loop``)."""
+STEP_STAGES = frozenset({"policy", "dagger"})
+"""Stages that count gradient steps instead of epochs (the policies' own loop, ``policy_loop``, and its DAgger
+rounds, ``dagger``, counting on from the loop's last step)."""
 
 
 def epoch_generators(seed: int, epoch: int, device: torch.device) -> tuple[np.random.Generator, torch.Generator]:
@@ -39,6 +40,7 @@ SHOWN_METRICS: Mapping[str, tuple[tuple[str, str], ...]] = {
     "heads": (("train_feasibility_loss", "feasibility loss"), ("feasibility_auc_hard", "held-out AUC hard"),
               ("cost_r2", "held-out cost R2")),
     "policy": (("policy_train_loss", "loss"), ("policy_heldout_mse", "held-out policy MSE")),
+    "dagger": (("dagger_round", "round"), ("dagger_train_loss", "loss"), ("dagger_heldout_mse", "held-out MSE")),
 }
 
 

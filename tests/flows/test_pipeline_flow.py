@@ -9,9 +9,11 @@ from pasta.cli import build_parser
 
 pytestmark = pytest.mark.flow
 
-# The smoke profile with short skills, two test configurations, one training epoch and a tiny planner.
+# The smoke profile with short skills, two test configurations, one training epoch, one DAgger round of one
+# problem and a tiny planner.
 OVERRIDES = ("sim.steps_per_skill=4", "sim.settle_steps=1", "plan.samples=8", "plan.iterations=2",
-             "data.n_eval_configs=2", "train.vae_epochs=1", "train.epochs=1")
+             "data.n_eval_configs=2", "train.vae_epochs=1", "train.epochs=1", "train.dagger_rounds=1",
+             "train.dagger_problems=1", "train.dagger_steps=2")
 
 
 class Interrupted(RuntimeError):
@@ -48,6 +50,12 @@ def test_pipeline_resumes_after_an_interruption_and_skips_finished_steps(prefect
     runs = mlflow.search_runs(experiment_names=["pasta/CutRearrange"])
     stages = runs["tags.pasta.stage"].value_counts().to_dict()
     assert stages["train"] == 1 and stages["evaluate"] == 1
+    training = runs[runs["tags.pasta.stage"] == "train"].iloc[0]
+    assert training["metrics.dagger_rounds"] == 1.0
+    client = mlflow.MlflowClient()
+    dagger_steps = [m.step for m in client.get_metric_history(training["run_id"], "dagger_heldout_mse")]
+    policy_steps = [m.step for m in client.get_metric_history(training["run_id"], "policy_heldout_mse")]
+    assert dagger_steps == [policy_steps[-1], policy_steps[-1] + 2]  # the round's 2 steps follow the loop's
     evaluation = runs[runs["tags.pasta.stage"] == "evaluate"].iloc[0]
     assert evaluation["status"] == "FINISHED" and evaluation["tags.pasta.experiment"] == "main"
     per_config = [evaluation[f"metrics.success_config_{i}"] for i in (0, 1)]

@@ -208,3 +208,29 @@ def test_a_chunking_policy_with_dough_frame_and_phase_fits_every_step_of_its_chu
     assert later_steps_error() < 0.7 * before
     first = policy_loop.heldout_mse(bundle.models["policy"][0], variant_spec("pasta"), samples, latents, 2)
     assert first == pytest.approx(result.curve[-1][1]["policy_heldout_mse_cut"], rel=1e-5)
+
+
+def test_visited_states_join_every_batch_and_pull_the_policy_to_their_labels(tmp_path, setup):
+    """DAgger's visits (``VisitPool``): states no demonstration shows (dough and tool 0.3 higher), labelled with an
+    action no demonstration takes. Trained with them, the cut policy learns that action there; without, not."""
+    from pasta.train.visits import VisitPool, take_samples
+
+    bundle, sampler, latents, held_out = setup
+    states = held_out[0]
+    label = torch.zeros_like(states.actions)
+    label[:, :2] = torch.tensor([-0.8, 0.8])
+    lift = torch.tensor([0.0, 0.3, 0.0])
+    visited = dataclasses.replace(take_samples(states, np.arange(len(states))), obs_points=states.obs_points + lift,
+                                  tool_points=states.tool_points + lift, actions=label, action_chunks=label)
+    pool = VisitPool((visited, None))
+    assert pool.count(0) == len(states) and pool.count(1) == 0
+    assert pool.draw(1, 4, np.random.default_rng(0)) is None
+    assert len(pool.draw(0, 3 * len(states), np.random.default_rng(0))) == 3 * len(states)
+    spec = variant_spec("pasta")
+    settings = dataclasses.replace(SETTINGS, steps=40, eval_every=40)
+    without = copy.deepcopy(bundle)
+    train_policies(bundle, sampler, [visited, held_out[1]], latents, settings, tmp_path / "with.pt", visits=pool)
+    train_policies(without, sampler, [visited, held_out[1]], latents, settings, tmp_path / "without.pt")
+    error_with = policy_loop.heldout_mse(bundle.models["policy"][0], spec, visited, latents, 2)
+    error_without = policy_loop.heldout_mse(without.models["policy"][0], spec, visited, latents, 2)
+    assert error_with < 0.5 * error_without, (error_with, error_without)
