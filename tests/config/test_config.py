@@ -184,6 +184,16 @@ def test_small_and_smoke_policy_budgets(task):
 
 
 @pytest.mark.parametrize("task", TASK_NAMES)
+def test_only_small_adds_dagger_rounds(task):
+    small = load(task, "small").train
+    assert (small.dagger_rounds, small.dagger_problems, small.dagger_expert_share, small.dagger_steps,
+            small.dagger_lr) == (3, 20, 0.3, 200, 5e-4)
+    assert load(task, "smoke").train.dagger_rounds == load(task, "paper").train.dagger_rounds == 0
+    with pytest.raises(ValueError, match="dagger_expert_share"):
+        load(task, "small", ["train.dagger_expert_share=1.5"])
+
+
+@pytest.mark.parametrize("task", TASK_NAMES)
 def test_planning_values_are_table3_at_paper(task):
     plan = load(task, "paper").plan
     assert plan.lr == pytest.approx(TABLE3_PLAN[task]["lr"])
