@@ -184,11 +184,11 @@ def test_small_and_smoke_policy_budgets(task):
 
 
 @pytest.mark.parametrize("task", TASK_NAMES)
-def test_only_small_adds_dagger_rounds(task):
-    small = load(task, "small").train
+def test_dagger_is_off_by_default_and_its_settings_are_validated(task):
+    small = load(task, "small", ["train.dagger_rounds=3"]).train
     assert (small.dagger_rounds, small.dagger_problems, small.dagger_expert_share, small.dagger_steps,
             small.dagger_lr) == (3, 20, 0.3, 200, 5e-4)
-    assert load(task, "smoke").train.dagger_rounds == load(task, "paper").train.dagger_rounds == 0
+    assert {load(task, profile).train.dagger_rounds for profile in ("smoke", "small", "paper")} == {0}
     with pytest.raises(ValueError, match="dagger_expert_share"):
         load(task, "small", ["train.dagger_expert_share=1.5"])
 
