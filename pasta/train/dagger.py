@@ -75,7 +75,7 @@ def _run_problem(cfg: TaskConfig, bundle: TrainedModels, config_id: int, generat
     env = make_env(cfg)
     env.reset(problem.initial)
     env.settle(cfg.sim.settle_steps)
-    n_steps, horizon, n_points = cfg.sim.steps_per_skill, max(cfg.policy.chunk, 1), cfg.policy.points
+    n_steps, horizon, n_points = cfg.sim.steps_per_skill, cfg.policy.chunk, cfg.policy.points
     for h, step in enumerate(oracle_chain(cfg, config_id, generator_seed), start=1):
         inputs = oracle_step_inputs(cfg, env, step, bundle, rng)
         tool = skill_tool(cfg, step.skill).name

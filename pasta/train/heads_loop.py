@@ -279,7 +279,7 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
         on_epoch: ``on_epoch("heads", epoch, metrics)`` after each epoch's checkpoint, then
             ``on_epoch("policy", steps, metrics)`` after each policy evaluation (``train_policies``) and, with
             ``cfg.train.dagger_rounds``, ``on_epoch("dagger", steps, metrics)`` after each evaluation of the
-            DAgger rounds (``pasta.train.dagger.dagger_rounds``; they run on the CPU, in this thread, and simulate).
+            DAgger rounds (``pasta.train.dagger.dagger_rounds``; they simulate, in this thread).
         device: where to train (default: where ``latents`` are).
 
     Returns:
@@ -300,9 +300,8 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
                             policy_progress_path(path), on_epoch=on_epoch)
     dagger, rounds = DaggerSettings.from_config(cfg), []
     if dagger.rounds:
-        rounds = dagger_rounds(cfg, bundle.to("cpu"), train_sampler, held_out.policy, latents.cpu(), settings.policy,
-                               dagger, path.with_suffix(""), first_step=settings.policy.steps, on_epoch=on_epoch)
-        bundle.to(device)
+        rounds = dagger_rounds(cfg, bundle, train_sampler, held_out.policy, latents, settings.policy, dagger,
+                               path.with_suffix(""), first_step=settings.policy.steps, on_epoch=on_epoch)
     bundle.eval()
     metrics = {**history[-1], **evaluate_policies(bundle, held_out.policy, latents), **policy.metrics()}
     if dagger.rounds:
