@@ -153,6 +153,7 @@ def train(task_name: str, profile: str = "smoke", variant: str = "pasta", method
         save_trained(bundle_path, heads.bundle, epoch=len(heads.history), extra={"vae_key": key})
         summary = {"vae_heldout_chamfer": vae.heldout_chamfer, **{k: heads.metrics[k] for k in FINAL_METRICS
                                                                   if k in heads.metrics},
+                   **{k: v for k, v in heads.metrics.items() if k.startswith("policy_mse_ratio_")},
                    **heads.policy.metrics()}
         if heads.dagger:
             summary["dagger_rounds"] = float(len(heads.dagger))

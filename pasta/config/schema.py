@@ -246,6 +246,11 @@ class TrainConfig(Frozen):
     policy_lr_schedule: Literal["cosine", "constant"] = "cosine"
     policy_eval_every: int = Field(ge=1)
     policy_patience: int | None = Field(default=None, ge=1)
+    # Mirror augmentation of the point-cloud set policy's training samples (pasta/train/mirror.py): each
+    # sample reflected at random in x, in z, in both or not at all, about the observed dough's centre, its
+    # actions' signs flipped to match. The tools are symmetric and the skills act alike on a mirrored
+    # scene, so this is four demonstrations for one. The appendix's training has none.
+    policy_mirror: bool = False
     # DAgger rounds after the policies' own loop (pasta/train/dagger.py; 0: none, the appendix's behaviour
     # cloning alone): each runs the oracle chains of dagger_problems fresh problems with the current policies
     # (the expert's action chunk instead at a share dagger_expert_share of the calls), labels every visited
@@ -283,8 +288,8 @@ class PolicyNetConfig(Frozen):
     ``encoder``: ``pointnet2``, the appendix's PointNet++ over the role-tagged union of the observation, tool
     and goal clouds; or ``pointnet``, a compact PointNet per cloud, max-pooled and concatenated, about 25x
     fewer operations per training step. The tool-concat ablation follows the choice; the latent-set policy
-    has no point encoder. ``frame``, ``phase_input`` and ``chunk`` shape the set policy (PASTA's) only: the
-    two policy ablations of Table 5 keep the appendix's inputs and one action per call.
+    has no point encoder. ``frame``, ``phase_input``, ``chunk`` and ``shape_quantiles`` shape the set policy
+    (PASTA's) only: the two policy ablations of Table 5 keep the appendix's inputs and one action per call.
     """
 
     encoder: Literal[POLICY_ENCODERS] = "pointnet2"
@@ -297,9 +302,20 @@ class PolicyNetConfig(Frozen):
     # Actions the set policy predicts per call (action chunking): the executor acts the chunk out and asks
     # again after that many steps; training fits every step of the chunk. 1 (the appendix's): one per step.
     chunk: int = Field(default=1, ge=1)
+    # Coordinate quantiles per axis of the observation and goal clouds (in the policy's frame) given to the
+    # set policy's action head beside the pooled features: where a piece begins and ends, and where the
+    # goal's gap lies, as numbers rather than as max-pooled features. 0 (the appendix's): none; otherwise at
+    # least 2 (the minimum and the maximum, and evenly spaced levels between).
+    shape_quantiles: int = Field(default=0, ge=0)
     # Points of the observation and goal clouds a policy sees, in training and in execution (each cloud
     # resampled to this many; the tool keeps its surface points). [S] §3.1: 1000.
     points: int = Field(default=1000, ge=8)
+
+    @model_validator(mode="after")
+    def _check_quantiles(self) -> PolicyNetConfig:
+        if self.shape_quantiles == 1:
+            raise ValueError("policy.shape_quantiles = 1: give 0 (none) or at least 2 (the minimum and the maximum)")
+        return self
 
 
 class EvalConfig(Frozen):

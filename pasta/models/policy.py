@@ -39,6 +39,7 @@ __all__ = [
     "PolicyConfig",
     "SetPolicy",
     "check_point_encoder",
+    "cloud_quantiles",
     "dough_frame",
     "encode_clouds",
     "filter_entities",
@@ -119,6 +120,27 @@ def dough_frame(obs_points: torch.Tensor, *clouds: torch.Tensor) -> tuple[list[t
     return [obs_points - shift, *(cloud - shift for cloud in clouds)], torch.cat(offsets, dim=-1)
 
 
+def cloud_quantiles(cloud: torch.Tensor, levels: int) -> torch.Tensor:
+    """Each axis's coordinate quantiles of a cloud, times ``CENTRE_OFFSET_SCALE`` (``policy.shape_quantiles``).
+
+    The levels are ``levels`` evenly spaced values from 0 (the minimum) to 1 (the maximum). A piece's extent,
+    and where the points of a goal split into pieces (the quantiles jump across the gap), become inputs the
+    action head reads directly, with the precision of the points rather than of the max-pooled features.
+
+    Args:
+        cloud: ``(B, N, 3)``.
+        levels: at least 2.
+
+    Returns:
+        ``(B, 3 * levels)``: x's quantiles, then y's, then z's.
+    """
+    if levels < 2:
+        raise ValueError(f"cloud quantiles need at least 2 levels (the minimum and the maximum), got {levels}")
+    at = torch.linspace(0.0, 1.0, levels, device=cloud.device)
+    quantiles = torch.quantile(cloud.float(), at, dim=1)  # (levels, B, 3)
+    return (quantiles.permute(1, 2, 0).reshape(cloud.shape[0], 3 * levels) * CENTRE_OFFSET_SCALE).to(cloud.dtype)
+
+
 def uniform_point_noise(points: torch.Tensor, amplitude: float, generator: torch.Generator | None) -> torch.Tensor:
     """``points + U(-amplitude, amplitude)`` per coordinate (official ``obs_noise`` = 0.005, uniform)."""
     unit = random_draws.rand(points.shape, generator, dtype=points.dtype, device=points.device)
@@ -182,6 +204,9 @@ class PolicyConfig:
             config's ``policy.phase_input``.
         chunk: actions predicted per call: this step's and the next ``chunk - 1`` (action chunking; the
             executor acts them out before it asks again); set from the task config's ``policy.chunk``.
+        shape_quantiles: the action head also reads this many coordinate quantiles per axis of the
+            observation and goal clouds, in the policy's frame (``cloud_quantiles``); 0: none. Set from the
+            task config's ``policy.shape_quantiles``.
     """
 
     point_encoder: str = "pointnet2"
@@ -192,9 +217,12 @@ class PolicyConfig:
     frame: str = "world"
     phase_input: bool = False
     chunk: int = 1
+    shape_quantiles: int = 0
 
     def __post_init__(self) -> None:
         check_point_encoder(self.point_encoder)
+        if self.shape_quantiles == 1 or self.shape_quantiles < 0:
+            raise ValueError(f"shape_quantiles must be 0 or at least 2, got {self.shape_quantiles}")
         if self.chunk < 1:
             raise ValueError(f"a policy predicts at least one action per call, got chunk {self.chunk}")
         if self.frame not in POLICY_FRAMES:
@@ -219,7 +247,7 @@ class SetPolicy(nn.Module):
         self.config = config
         self.action_dim = action_dim
         self.encoder = point_encoder(config.point_encoder, config.encoder, config.pointnet, n_clouds=3)
-        extra = (6 if config.frame == "dough" else 0) + (1 if config.phase_input else 0)
+        extra = (6 if config.frame == "dough" else 0) + (1 if config.phase_input else 0) + 6 * config.shape_quantiles
         self.head = mlp((self.encoder.out_dim + extra, *config.action_head_channels, action_dim * config.chunk),
                         final_activation=False)
         orthogonal_init_(self.head)
@@ -231,7 +259,11 @@ class SetPolicy(nn.Module):
             clouds, offsets = dough_frame(obs_points, tool_points, goal_points)
             features = [encode_clouds(self.encoder, clouds), offsets.to(obs_points.dtype)]
         else:
-            features = [encode_clouds(self.encoder, (obs_points, tool_points, goal_points))]
+            clouds = [obs_points, tool_points, goal_points]
+            features = [encode_clouds(self.encoder, clouds)]
+        if self.config.shape_quantiles:
+            features += [cloud_quantiles(clouds[0], self.config.shape_quantiles),
+                         cloud_quantiles(clouds[2], self.config.shape_quantiles)]
         if self.config.phase_input:
             if phase is None or phase.shape != (obs_points.shape[0],):
                 raise ValueError(f"this policy reads the skill's phase: need phase of shape ({obs_points.shape[0]},), "

@@ -20,6 +20,7 @@ an uninterrupted run. At the end every policy with held-out samples gets its bes
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -31,6 +32,7 @@ import torch
 from torch import nn
 
 from pasta.config.schema import TaskConfig
+from pasta.models import random_draws
 from pasta.models.checkpoint import load_checkpoint, restore_models, save_checkpoint
 from pasta.models.feasibility_samples import add_latent_noise
 from pasta.models.policy import uniform_point_noise
@@ -38,6 +40,7 @@ from pasta.models.variants import VariantSpec, variant_spec
 from pasta.train.bundle import TrainedModels
 from pasta.train.datasets import PolicySamples, TransitionSampler, pad_sets
 from pasta.train.metrics import action_mse
+from pasta.train.mirror import mirror_action_signs, mirror_batch
 from pasta.train.precision import check_precision, training_autocast
 from pasta.train.progress import EpochCallback, epoch_generators
 from pasta.train.visits import VisitPool, concat_samples
@@ -64,6 +67,7 @@ class PolicySettings:
     sigma_t: float = 0.0
     precision: str = "fp32"
     seed: int = 0
+    mirror_signs: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def __post_init__(self) -> None:
         if min(self.steps, self.batch_size, self.eval_every) < 1 or self.lr <= 0 or self.lr_schedule not in (
@@ -75,12 +79,15 @@ class PolicySettings:
     @classmethod
     def from_config(cls, cfg: TaskConfig, variant: str, seed: int = 0) -> PolicySettings:
         """``cfg.train``'s policy values; latent noise (latent-set policy) only for variants with ``latent_noise``."""
-        train, noisy = cfg.train, variant_spec(variant).latent_noise
+        spec = variant_spec(variant)
+        train, noisy = cfg.train, spec.latent_noise
+        mirrored = train.policy_mirror and not (spec.policy_on_latents or spec.tool_state_after_encoder)
         return cls(steps=train.policy_steps, lr=train.policy_lr, batch_size=train.policy_batch_size,
                    point_noise=train.policy_point_noise, lr_schedule=train.policy_lr_schedule,
                    eval_every=train.policy_eval_every, patience=train.policy_patience,
                    lambda_policy=train.lambda_policy, sigma_z=train.feasibility_sigma_z if noisy else 0.0,
-                   sigma_t=train.feasibility_sigma_t if noisy else 0.0, precision=train.precision, seed=seed)
+                   sigma_t=train.feasibility_sigma_t if noisy else 0.0, precision=train.precision, seed=seed,
+                   mirror_signs=mirror_action_signs(cfg) if mirrored else None)
 
 
 def lr_at(step: int, settings: PolicySettings) -> float:
@@ -127,11 +134,23 @@ def policy_loss(policy: nn.Module, spec: VariantSpec, settings: PolicySettings, 
     """``L_pi``: the squared action error summed over the ``A`` dimensions, averaged over the ``B`` samples
     (noisy inputs, model_spec §4.4) and over the ``H`` steps of the chunk a policy predicts (``H`` = 1 but for
     a set policy with ``chunk`` > 1); the forward pass in ``settings.precision``, the error in float32."""
+    if settings.mirror_signs is not None:
+        samples = _mirrored(samples, settings.mirror_signs, generator)
     with training_autocast(settings.precision, latents.device):
         predicted = policy_forward(policy, spec, samples, latents, latent_dim, settings, generator)
     steps = predicted.shape[1] // samples.actions.shape[1]
     target = samples.action_chunks[:, : predicted.shape[1]].to(latents.device)
     return (predicted.float() - target).square().sum(dim=1).mean() / steps
+
+
+def _mirrored(samples: PolicySamples, signs: tuple[tuple[float, ...], tuple[float, ...]],
+              generator: torch.Generator) -> PolicySamples:
+    """``samples`` each reflected at random: as they are, in x, in z or in both (``pasta.train.mirror``)."""
+    choice = random_draws.randint(4, (len(samples),), generator, device=samples.obs_points.device)
+    obs, tool, goal, chunks = mirror_batch(samples.obs_points, samples.tool_points, samples.goal_points,
+                                           samples.action_chunks.to(samples.obs_points.device), signs, choice)
+    return dataclasses.replace(samples, obs_points=obs, tool_points=tool, goal_points=goal, action_chunks=chunks,
+                               actions=chunks[:, : samples.actions.shape[1]])
 
 
 def _predictions(policy: nn.Module, spec: VariantSpec, samples: PolicySamples, latents: torch.Tensor,
@@ -151,20 +170,25 @@ def heldout_mse(policy: nn.Module, spec: VariantSpec, samples: PolicySamples, la
 
 def evaluate_policies(bundle: TrainedModels, held_out: list[PolicySamples | None],
                       latents: torch.Tensor) -> dict[str, float]:
-    """``policy_mse`` and its zero-action baseline ``policy_zero_mse``, all skills' held-out samples pooled
-    (nothing when no skill has any)."""
+    """``policy_mse`` and its zero-action baseline ``policy_zero_mse``, all skills' held-out samples pooled, and
+    per skill ``policy_mse_<skill>``, ``policy_zero_mse_<skill>`` and their ratio ``policy_mse_ratio_<skill>``
+    (issue 13's bar reads the ratio per skill); nothing for a skill without held-out samples."""
     spec = variant_spec(bundle.variant)
-    predicted, true = [], []
+    predicted, true, metrics = [], [], {}
     for k, samples in enumerate(held_out):
-        if samples is not None:
-            predicted.append(_predictions(bundle.models["policy"][k], spec, samples, latents,
-                                          bundle.prior.latent_dim))
-            true.append(samples.actions.numpy())
+        if samples is None:
+            continue
+        predicted.append(_predictions(bundle.models["policy"][k], spec, samples, latents, bundle.prior.latent_dim))
+        true.append(samples.actions.numpy())
+        name = bundle.skill_names[k]
+        mse, zero = action_mse(predicted[-1], true[-1]), action_mse(np.zeros_like(true[-1]), true[-1])
+        metrics.update({f"policy_mse_{name}": mse, f"policy_zero_mse_{name}": zero,
+                        f"policy_mse_ratio_{name}": mse / zero if zero > 0 else math.nan})
     if not predicted:
         return {}
     actions = np.concatenate(true)
     return {"policy_mse": action_mse(np.concatenate(predicted), actions),
-            "policy_zero_mse": action_mse(np.zeros_like(actions), actions)}
+            "policy_zero_mse": action_mse(np.zeros_like(actions), actions), **metrics}
 
 
 @dataclass

@@ -424,12 +424,14 @@ def test_other_invalid_values_are_config_errors():
 @pytest.mark.parametrize("profile", PROFILE_NAMES)
 def test_small_policy_chunks_in_the_dough_frame_and_the_others_keep_the_appendixs(profile):
     policy = load("CutRearrange", profile).policy
-    expected = ("dough", True, 10) if profile == "small" else ("world", False, 1)
-    assert (policy.frame, policy.phase_input, policy.chunk) == expected
+    expected = ("dough", True, 10, 9) if profile == "small" else ("world", False, 1, 0)
+    assert (policy.frame, policy.phase_input, policy.chunk, policy.shape_quantiles) == expected
     with pytest.raises(ConfigError, match=r"policy\.frame = 'tool'"):
         load("CutRearrange", profile, ["policy.frame=tool"])
     with pytest.raises(ConfigError, match=r"policy\.chunk"):
         load("CutRearrange", profile, ["policy.chunk=0"])
+    with pytest.raises(ConfigError, match=r"shape_quantiles = 1"):
+        load("CutRearrange", profile, ["policy.shape_quantiles=1"])
 
 
 @pytest.mark.parametrize("profile", PROFILE_NAMES)

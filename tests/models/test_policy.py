@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from pasta.models import PolicyConfig, SetPolicy, filter_entities, uniform_point_noise
-from pasta.models.policy import CENTRE_OFFSET_SCALE, dough_frame, tag_point_roles
+from pasta.models.policy import CENTRE_OFFSET_SCALE, cloud_quantiles, dough_frame, tag_point_roles
 from tests.models.synthetic import box_clouds, goal_offset_problem, tiny_encoder, train
 
 
@@ -125,3 +125,39 @@ def test_a_phase_policy_reads_the_phase_and_refuses_to_go_without_it():
         policy(*clouds)
     with pytest.raises(ValueError, match="frame"):
         PolicyConfig(frame="tool")
+
+
+def test_cloud_quantiles_match_sorted_coordinates():
+    gen = torch.Generator().manual_seed(3)
+    cloud = torch.rand(2, 101, 3, generator=gen)
+    got = cloud_quantiles(cloud, 5).view(2, 3, 5) / CENTRE_OFFSET_SCALE
+    ordered = cloud.sort(dim=1).values  # (2, 101, 3): with 101 points, level q sits exactly at index 100 q
+    for b in range(2):
+        for axis in range(3):
+            expected = ordered[b, [0, 25, 50, 75, 100], axis]
+            assert torch.allclose(got[b, axis], expected, atol=1e-6)
+    with pytest.raises(ValueError, match="got 1"):
+        cloud_quantiles(cloud, 1)
+
+
+def test_a_quantile_policy_sees_where_the_goal_splits():
+    """Two goals with the same centre and pooled extent but the gap at different x: the quantile features
+    differ, so a quantile policy can act on where the cut is."""
+    torch.manual_seed(0)
+    policy = SetPolicy(4, PolicyConfig(point_encoder="pointnet", frame="dough", shape_quantiles=9)).eval()
+    assert policy.head[0].in_features == policy.encoder.out_dim + 6 + 6 * 9
+    gen = torch.Generator().manual_seed(4)
+    obs, tool = torch.rand(1, 64, 3, generator=gen), torch.rand(1, 16, 3, generator=gen)
+    unit = torch.rand(1, 64, 3, generator=gen)
+
+    def goal(split: float) -> torch.Tensor:
+        left = unit[:, :32] * torch.tensor([split - 0.05, 1.0, 1.0])
+        right = unit[:, 32:] * torch.tensor([0.95 - split, 1.0, 1.0]) + torch.tensor([split + 0.05, 0.0, 0.0])
+        return torch.cat([left, right], dim=1)
+
+    features = [cloud_quantiles(goal(s), 9) for s in (0.3, 0.6)]
+    assert (features[0] - features[1]).abs().max() > 0.5
+    with torch.no_grad():
+        assert not torch.allclose(policy(obs, tool, goal(0.3)), policy(obs, tool, goal(0.6)), atol=1e-5)
+    with pytest.raises(ValueError, match="shape_quantiles"):
+        PolicyConfig(shape_quantiles=1)

@@ -234,3 +234,27 @@ def test_visited_states_join_every_batch_and_pull_the_policy_to_their_labels(tmp
     error_with = policy_loop.heldout_mse(bundle.models["policy"][0], spec, visited, latents, 2)
     error_without = policy_loop.heldout_mse(without.models["policy"][0], spec, visited, latents, 2)
     assert error_with < 0.5 * error_without, (error_with, error_without)
+
+
+def test_mirrored_training_with_shape_quantiles_learns_and_is_set_for_cloud_set_policies_only(tmp_path, cfg,
+                                                                                              training_data):
+    """``train.policy_mirror`` and ``policy.shape_quantiles``: the set policy trains on reflected samples (the
+    batch's actions sign-flipped as the tools' kinematics say, ``pasta.train.mirror``) and its held-out MSE
+    falls; the policies that read latents or a tool state are left unmirrored."""
+    cfg = cfg.model_copy(update={
+        "policy": cfg.policy.model_copy(update={"frame": "dough", "shape_quantiles": 5}),
+        "train": cfg.train.model_copy(update={"policy_mirror": True})})
+    mirrored = PolicySettings.from_config(cfg, "pasta")
+    assert mirrored.mirror_signs is not None and len(mirrored.mirror_signs[0]) == 10  # knife 3 + gripper 7
+    assert PolicySettings.from_config(cfg, "shared_encoder_policy").mirror_signs is None
+    assert PolicySettings.from_config(cfg, "tool_concat_policy").mirror_signs is None
+    config, _, latents, prior, _, _ = heads_inputs(cfg, training_data, "pasta")
+    bundle = untrained(cfg, "pasta", prior, model_config=config, seed=0)
+    assert bundle.model_config.policy.shape_quantiles == 5
+    sampler = TransitionSampler(training_data.demos, training_data.table, cfg.skills, training_data.heads_train,
+                                0.0, PairChamfer(training_data.table))
+    held_out = [sampler.policy_samples(k, sampler.transitions[k], np.random.default_rng(0), 8) for k in range(2)]
+    settings = dataclasses.replace(SETTINGS, steps=30, eval_every=30, mirror_signs=mirrored.mirror_signs)
+    result = train_policies(bundle, sampler, held_out, latents, settings, tmp_path / "p.pt")
+    start, end = result.curve[0][1], result.curve[-1][1]
+    assert end["policy_heldout_mse_cut"] < 0.8 * start["policy_heldout_mse_cut"], result.curve

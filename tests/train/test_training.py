@@ -130,6 +130,16 @@ def test_heads_and_policies_resume_where_they_stopped_and_report_metrics(tmp_pat
         assert np.isfinite(straight.metrics[key]), key
     metrics = straight.metrics
     assert metrics["policy_mse"] < 0.9 * metrics["policy_zero_mse"], metrics
+    skills = [k for k in range(2) if held_out.policy[k] is not None]  # per skill: the pooled figures split
+    assert skills, "no held-out policy samples"
+    names = [("cut", "rearrange")[k] for k in skills]
+    for skill in names:
+        ratio = metrics[f"policy_mse_{skill}"] / metrics[f"policy_zero_mse_{skill}"]
+        assert metrics[f"policy_mse_ratio_{skill}"] == pytest.approx(ratio), metrics
+    zeros = [metrics[f"policy_zero_mse_{s}"] for s in names]
+    assert min(zeros) - 1e-9 <= metrics["policy_zero_mse"] <= max(zeros) + 1e-9, metrics
+    for k, name in enumerate(("cut", "rearrange")):  # a skill without held-out samples reports nothing
+        assert (f"policy_mse_ratio_{name}" in metrics) == (held_out.policy[k] is not None), metrics
     assert metrics["feasibility_auc_random"] > 0.8, metrics  # measured 1.0; 0.5 is chance
     assert metrics["policy_steps_cut"] == metrics["policy_steps_rearrange"] == 24, metrics
 
