@@ -246,11 +246,16 @@ class TrainConfig(Frozen):
     policy_lr_schedule: Literal["cosine", "constant"] = "cosine"
     policy_eval_every: int = Field(ge=1)
     policy_patience: int | None = Field(default=None, ge=1)
-    # Mirror augmentation of the point-cloud set policy's training samples (pasta/train/mirror.py): each
-    # sample reflected at random in x, in z, in both or not at all, about the observed dough's centre, its
-    # actions' signs flipped to match. The tools are symmetric and the skills act alike on a mirrored
-    # scene, so this is four demonstrations for one. The appendix's training has none.
-    policy_mirror: bool = False
+    # Mirror augmentation of the point-cloud set policy's training samples (pasta/train/mirror.py): "x": each
+    # sample reflected at random in the vertical plane x = c_x through the observed dough's centre, or not;
+    # "xz": at random in x, in z, in both or not at all; its actions' signs flipped to match. The tools are
+    # symmetric and the skills act alike on a mirrored scene, so a reflected demonstration is another one.
+    # "none" (the appendix's training): no reflection.
+    policy_mirror: Literal["none", "x", "xz"] = "none"
+    # How many times as often as any other step each demonstration's first step is drawn for the policies'
+    # batches. A skill's first step holds its approach (the knife's move to the cut's x is one step of 50),
+    # which decides where the skill acts; drawn uniformly it is one sample in 50. 1: uniform (the appendix's).
+    policy_first_step_weight: int = Field(default=1, ge=1)
     # DAgger rounds after the policies' own loop (pasta/train/dagger.py; 0: none, the appendix's behaviour
     # cloning alone): each runs the oracle chains of dagger_problems fresh problems with the current policies
     # (the expert's action chunk instead at a share dagger_expert_share of the calls), labels every visited
@@ -302,6 +307,11 @@ class PolicyNetConfig(Frozen):
     # Actions the set policy predicts per call (action chunking): the executor acts the chunk out and asks
     # again after that many steps; training fits every step of the chunk. 1 (the appendix's): one per step.
     chunk: int = Field(default=1, ge=1)
+    # How the executor acts chunks out: "open" acts each chunk to its end before asking again; "ensemble"
+    # asks at every step and acts the weighted mean of every chunk's prediction for that step (temporal
+    # ensembling: Zhao et al., 2023), a prediction made k steps ago weighted exp(-ensemble_decay k).
+    chunk_execution: Literal["open", "ensemble"] = "open"
+    ensemble_decay: float = 0.0
     # Coordinate quantiles per axis of the observation and goal clouds (in the policy's frame) given to the
     # set policy's action head beside the pooled features: where a piece begins and ends, and where the
     # goal's gap lies, as numbers rather than as max-pooled features. 0 (the appendix's): none; otherwise at
@@ -323,6 +333,9 @@ class EvalConfig(Frozen):
 
     success_threshold: float = Field(gt=0, lt=1)
     seeds: tuple[int, ...] = (0, 1, 2)
+    # Skills the policy executor leaves to the scripted skills (a diagnostic: with the oracle plan, which
+    # skill's policy loses the score); empty: every skill runs its policy.
+    scripted_skills: tuple[str, ...] = ()
 
 
 class TaskConfig(Frozen):
@@ -353,6 +366,10 @@ class TaskConfig(Frozen):
                 raise ValueError(f"skill {skill.name!r} names tool {skill.tool!r}; tools are {tool_names}")
             if skill.tool in static:
                 raise ValueError(f"skill {skill.name!r} uses static tool {skill.tool!r}; it cannot move")
+        unknown = sorted(set(self.eval.scripted_skills) - {s.name for s in self.skills})
+        if unknown:
+            raise ValueError(f"eval.scripted_skills names {unknown}; the task's skills are "
+                             f"{[s.name for s in self.skills]}")
         for tool in self.tools:
             for other in tool.collides_with:
                 if other not in tool_names or other == tool.name:

@@ -28,6 +28,7 @@ import torch
 from pasta.config.schema import TaskConfig
 from pasta.data.configurations import tool_clearance
 from pasta.data.skills import place_tool_for_skill, scripted_actions, skill_tool
+from pasta.evaluate.chunk_ensemble import ChunkEnsemble
 from pasta.evaluate.encoding import segment
 from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_action
 from pasta.evaluate.selection import attended_mask
@@ -147,6 +148,9 @@ def policy_view(env: DoughEnv, tool: str, indices: np.ndarray, goal_points: np.n
 def _run_policy(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, plan_step: int, indices: np.ndarray,
                 goal_points: np.ndarray, goal_latents: torch.Tensor, rng: np.random.Generator) -> None:
     goal_points = resample(goal_points, env.cfg.policy.points, rng)  # one cloud of the new subgoals, as in training
+    if env.cfg.policy.chunk_execution == "ensemble":
+        _run_policy_ensembled(env, bundle, skill, tool, plan_step, indices, goal_points, goal_latents, rng)
+        return
     chunk = np.zeros((0, env.action_dim))
     for k in range(env.cfg.sim.steps_per_skill):
         if len(chunk) == 0:  # ask the policy; a chunking policy answers for several steps
@@ -154,6 +158,18 @@ def _run_policy(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, pla
             chunk = policy_action(bundle, skill, seen).reshape(-1, env.action_dim)
         env.step(checked_action(chunk[0], skill, plan_step, k))
         chunk = chunk[1:]
+
+
+def _run_policy_ensembled(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, plan_step: int,
+                          indices: np.ndarray, goal_points: np.ndarray, goal_latents: torch.Tensor,
+                          rng: np.random.Generator) -> None:
+    """The policy asked at every step; each step acts the temporal ensemble of the chunks' predictions for it."""
+    n_steps = env.cfg.sim.steps_per_skill
+    ensemble = ChunkEnsemble(n_steps, env.action_dim, env.cfg.policy.ensemble_decay)
+    for k in range(n_steps):
+        seen = policy_view(env, tool, indices, goal_points, goal_latents, k, rng)
+        ensemble.add(k, policy_action(bundle, skill, seen).reshape(-1, env.action_dim))
+        env.step(checked_action(ensemble.action(k), skill, plan_step, k))
 
 
 def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step: int, mask: np.ndarray,
@@ -175,7 +191,7 @@ def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step
     before_skill = env.get_state()
     try:
         place_tool_for_skill(env, skill, mask, target)
-        if executor == "scripted":
+        if executor == "scripted" or skill in cfg.eval.scripted_skills:
             for action in scripted_actions(env, skill, target, mask):
                 env.step(action)
         else:

@@ -14,7 +14,8 @@ change as the reflection ``M`` (``diag(-1, 1, 1)`` or ``diag(1, 1, -1)``) change
   mirrored one (roll and slide change sign), a reflection in z does not; its yaw, a rotation about y, changes
   sign under both.
 
-``train.policy_mirror`` draws one of identity, x, z and both for every sample of every batch.
+``train.policy_mirror`` draws, for every sample of every batch, identity or x (``x``), or one of identity, x, z
+and both (``xz``).
 """
 
 from __future__ import annotations
@@ -23,9 +24,10 @@ import numpy as np
 import torch
 
 from pasta.config.schema import TaskConfig
+from pasta.models import random_draws
 from pasta.sim.engine import ACTION_DIMS
 
-__all__ = ["MIRROR_SIGNS", "mirror_action_signs", "mirror_batch"]
+__all__ = ["MIRROR_SIGNS", "mirror_action_signs", "mirror_batch", "reflection_codes"]
 
 # Per tool kind, the action signs under a reflection in x and in z, in the order of the tool's action vector.
 MIRROR_SIGNS: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
@@ -51,6 +53,15 @@ def mirror_action_signs(cfg: TaskConfig) -> tuple[tuple[float, ...], tuple[float
         signs_x += x
         signs_z += z
     return tuple(signs_x), tuple(signs_z)
+
+
+def reflection_codes(n: int, planes: str, generator: torch.Generator | None,
+                     device: torch.device | str | None = None) -> torch.Tensor:
+    """``(n,)`` codes for :func:`mirror_batch`, uniform over 0 (as it is) and 1 (in x) for ``planes`` ``x``, over
+    0..3 (also 2: in z, 3: in both) for ``xz``."""
+    if planes not in ("x", "xz"):
+        raise ValueError(f"mirror planes must be 'x' or 'xz', got {planes!r}")
+    return random_draws.randint(2 if planes == "x" else 4, (n,), generator, device=device)
 
 
 def mirror_batch(obs: torch.Tensor, tool: torch.Tensor, goal: torch.Tensor, actions: torch.Tensor,

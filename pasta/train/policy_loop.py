@@ -32,7 +32,6 @@ import torch
 from torch import nn
 
 from pasta.config.schema import TaskConfig
-from pasta.models import random_draws
 from pasta.models.checkpoint import load_checkpoint, restore_models, save_checkpoint
 from pasta.models.feasibility_samples import add_latent_noise
 from pasta.models.policy import uniform_point_noise
@@ -40,13 +39,13 @@ from pasta.models.variants import VariantSpec, variant_spec
 from pasta.train.bundle import TrainedModels
 from pasta.train.datasets import PolicySamples, TransitionSampler, pad_sets
 from pasta.train.metrics import action_mse
-from pasta.train.mirror import mirror_action_signs, mirror_batch
+from pasta.train.mirror import mirror_action_signs, mirror_batch, reflection_codes
 from pasta.train.precision import check_precision, training_autocast
 from pasta.train.progress import EpochCallback, epoch_generators
 from pasta.train.visits import VisitPool, concat_samples
 
 __all__ = ["PolicyResult", "PolicySettings", "evaluate_policies", "heldout_mse", "lr_at", "policy_forward",
-           "policy_loss", "policy_progress_path", "train_policies"]
+           "policy_loss", "policy_progress_path", "train_policies", "weighted_rows"]
 
 ROWS_PER_SAMPLE = 4  # transitions offered per wanted sample: filtering rejects some (empty or wrong counts)
 
@@ -68,12 +67,14 @@ class PolicySettings:
     precision: str = "fp32"
     seed: int = 0
     mirror_signs: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    mirror_planes: Literal["x", "xz"] = "xz"
+    first_step_weight: int = 1
 
     def __post_init__(self) -> None:
-        if min(self.steps, self.batch_size, self.eval_every) < 1 or self.lr <= 0 or self.lr_schedule not in (
-                "cosine", "constant") or (self.patience is not None and self.patience < 1):
-            raise ValueError(f"need steps, batch_size, eval_every >= 1, lr > 0, lr_schedule cosine or constant "
-                             f"and patience None or >= 1, got {self}")
+        if min(self.steps, self.batch_size, self.eval_every, self.first_step_weight) < 1 or self.lr <= 0 or (
+                self.lr_schedule not in ("cosine", "constant")) or (self.patience is not None and self.patience < 1):
+            raise ValueError(f"need steps, batch_size, eval_every, first_step_weight >= 1, lr > 0, lr_schedule "
+                             f"cosine or constant and patience None or >= 1, got {self}")
         check_precision(self.precision)
 
     @classmethod
@@ -81,13 +82,15 @@ class PolicySettings:
         """``cfg.train``'s policy values; latent noise (latent-set policy) only for variants with ``latent_noise``."""
         spec = variant_spec(variant)
         train, noisy = cfg.train, spec.latent_noise
-        mirrored = train.policy_mirror and not (spec.policy_on_latents or spec.tool_state_after_encoder)
+        mirrored = train.policy_mirror != "none" and not (spec.policy_on_latents or spec.tool_state_after_encoder)
         return cls(steps=train.policy_steps, lr=train.policy_lr, batch_size=train.policy_batch_size,
                    point_noise=train.policy_point_noise, lr_schedule=train.policy_lr_schedule,
                    eval_every=train.policy_eval_every, patience=train.policy_patience,
                    lambda_policy=train.lambda_policy, sigma_z=train.feasibility_sigma_z if noisy else 0.0,
                    sigma_t=train.feasibility_sigma_t if noisy else 0.0, precision=train.precision, seed=seed,
-                   mirror_signs=mirror_action_signs(cfg) if mirrored else None)
+                   mirror_signs=mirror_action_signs(cfg) if mirrored else None,
+                   mirror_planes="x" if train.policy_mirror == "x" else "xz",
+                   first_step_weight=train.policy_first_step_weight)
 
 
 def lr_at(step: int, settings: PolicySettings) -> float:
@@ -135,7 +138,7 @@ def policy_loss(policy: nn.Module, spec: VariantSpec, settings: PolicySettings, 
     (noisy inputs, model_spec §4.4) and over the ``H`` steps of the chunk a policy predicts (``H`` = 1 but for
     a set policy with ``chunk`` > 1); the forward pass in ``settings.precision``, the error in float32."""
     if settings.mirror_signs is not None:
-        samples = _mirrored(samples, settings.mirror_signs, generator)
+        samples = _mirrored(samples, settings.mirror_signs, settings.mirror_planes, generator)
     with training_autocast(settings.precision, latents.device):
         predicted = policy_forward(policy, spec, samples, latents, latent_dim, settings, generator)
     steps = predicted.shape[1] // samples.actions.shape[1]
@@ -143,10 +146,11 @@ def policy_loss(policy: nn.Module, spec: VariantSpec, settings: PolicySettings, 
     return (predicted.float() - target).square().sum(dim=1).mean() / steps
 
 
-def _mirrored(samples: PolicySamples, signs: tuple[tuple[float, ...], tuple[float, ...]],
+def _mirrored(samples: PolicySamples, signs: tuple[tuple[float, ...], tuple[float, ...]], planes: str,
               generator: torch.Generator) -> PolicySamples:
-    """``samples`` each reflected at random: as they are, in x, in z or in both (``pasta.train.mirror``)."""
-    choice = random_draws.randint(4, (len(samples),), generator, device=samples.obs_points.device)
+    """``samples`` each reflected at random (``pasta.train.mirror``): as they are or in x (``planes`` "x"); as
+    they are, in x, in z or in both ("xz")."""
+    choice = reflection_codes(len(samples), planes, generator, samples.obs_points.device)
     obs, tool, goal, chunks = mirror_batch(samples.obs_points, samples.tool_points, samples.goal_points,
                                            samples.action_chunks.to(samples.obs_points.device), signs, choice)
     return dataclasses.replace(samples, obs_points=obs, tool_points=tool, goal_points=goal, action_chunks=chunks,
@@ -218,6 +222,14 @@ class PolicyResult:
                 **{f"policy_best_step_{name}": float(n) for name, n in self.best_steps.items()}}
 
 
+def weighted_rows(transitions: np.ndarray, first_step_weight: int) -> np.ndarray:
+    """Positions into ``transitions`` ``(n, 2)`` (rows of trajectory, step), each row once and the rows of
+    step 0 ``first_step_weight`` times: a permutation of these draws first steps that much more often."""
+    positions = np.arange(len(transitions))
+    first = np.flatnonzero(transitions[:, 1] == 0)
+    return np.concatenate([positions, np.repeat(first, first_step_weight - 1)])
+
+
 def _batch_rows(sampler: TransitionSampler, k: int, order: np.ndarray, step_in_round: int,
                 batch_size: int) -> np.ndarray:
     """Transitions ``(ROWS_PER_SAMPLE * batch_size, 2)`` offered to step ``step_in_round`` of skill ``k``:
@@ -234,7 +246,7 @@ def _train_round(bundle: TrainedModels, settings: PolicySettings, sampler: Trans
     spec, policies, latent_dim = variant_spec(bundle.variant), bundle.models["policy"], bundle.prior.latent_dim
     rng, generator = epoch_generators(settings.seed, first_step // settings.eval_every, latents.device)
     active = [k for k, skill in enumerate(skills) if not skill.done]
-    orders = {k: rng.permutation(sampler.count(k)) for k in active}
+    orders = {k: rng.permutation(weighted_rows(sampler.transitions[k], settings.first_step_weight)) for k in active}
     losses: dict[int, list[float]] = {k: [] for k in active}
     policies.train()
     for j in range(n_steps):

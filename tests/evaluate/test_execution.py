@@ -9,6 +9,7 @@ import pytest
 import torch
 from torch import nn
 
+from pasta.config import load
 from pasta.data.configurations import evaluation_problems, tool_clearance
 from pasta.evaluate.execution import already_reached, execute_plan
 from pasta.evaluate.policy_action import NonFiniteActionError, checked_action
@@ -18,6 +19,7 @@ from pasta.plan.result import Plan
 from pasta.sim.engine import SimulationError
 from pasta.sim.tool_points import world_sdf
 from pasta.train.bundle import TrainedModels
+from tests.evaluate.conftest import FAST
 
 
 class ScriptedOutputs(nn.Module):
@@ -149,6 +151,34 @@ def test_a_chunking_policy_is_asked_once_per_chunk_and_its_actions_are_acted_out
     assert policy.phases == pytest.approx([k / n for k in range(0, n, 3)])
     for k in range(n):
         np.testing.assert_array_equal(taken[k], (first, second, third)[k % 3])
+
+
+def test_an_ensembling_executor_asks_every_step_and_acts_the_mean_of_the_chunks_predictions(bundle, monkeypatch):
+    cfg = load("CutRearrange", "smoke", [*FAST, "policy.chunk_execution=ensemble", "policy.ensemble_decay=0"])
+    env, plan = cut_plan(cfg, bundle)
+    first, second, third = (env.action_for("knife", np.array([v, 0.0, 0.0])) for v in (0.1, -0.2, 0.3))
+    policy = ScriptedOutputs([np.concatenate([first, second, third]).tolist()])  # the same chunk of 3 every call
+    taken = []
+    real_step = env.step
+    monkeypatch.setattr(env, "step", lambda action: (taken.append(np.array(action)), real_step(action))[1])
+    execute_plan(cfg, with_policies(bundle, policy), env, plan, "policy", np.random.default_rng(0))
+    n = cfg.sim.steps_per_skill
+    assert n == 2 and policy.calls == n
+    np.testing.assert_allclose(taken[0], first)
+    np.testing.assert_allclose(taken[1], (second + first) / 2, rtol=1e-6)  # call 0's second, call 1's first
+
+
+def test_skills_left_to_the_scripts_run_their_scripted_actions_under_the_policy_executor(bundle):
+    cfg = load("CutRearrange", "smoke", [*FAST, "eval.scripted_skills=[cut]"])
+    policy = ScriptedOutputs([[1.0] * bundle.action_dim])
+    env, plan = cut_plan(cfg, bundle)
+    mixed = execute_plan(cfg, with_policies(bundle, policy), env, plan, "policy", np.random.default_rng(0))
+    env, plan = cut_plan(cfg, bundle)
+    scripted = execute_plan(cfg, bundle, env, plan, "scripted", np.random.default_rng(0))
+    assert policy.calls == 0
+    np.testing.assert_array_equal(mixed.final.dough_points, scripted.final.dough_points)
+    with pytest.raises(ValueError, match=r"\['lift'\]"):
+        load("CutRearrange", "smoke", ["eval.scripted_skills=[cut, lift]"])
 
 
 def test_a_step_whose_subgoal_is_already_reached_is_skipped(cfg, bundle):

@@ -8,7 +8,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from pasta.config import load
-from pasta.train.mirror import MIRROR_SIGNS, mirror_action_signs, mirror_batch
+from pasta.train.mirror import MIRROR_SIGNS, mirror_action_signs, mirror_batch, reflection_codes
 
 REFLECTIONS = (np.diag([-1.0, 1.0, 1.0]), np.diag([1.0, 1.0, -1.0]))  # in x, in z
 
@@ -94,3 +94,18 @@ def test_mirror_batch_reflects_about_the_dough_centre_and_twice_is_the_identity(
     assert torch.equal(m_chunks[3], chunks[3] * torch.tensor(signs[0] * 2) * torch.tensor(signs[1] * 2))
     with pytest.raises(ValueError, match="width 9"):
         mirror_batch(obs, tool, goal, chunks[:, :9], signs, choice)
+
+
+def test_x_planes_reflect_in_x_only_and_xz_planes_use_every_reflection():
+    generator = torch.Generator().manual_seed(0)
+    x_only = reflection_codes(400, "x", generator)
+    assert set(x_only.tolist()) == {0, 1}
+    assert set(reflection_codes(400, "xz", generator).tolist()) == {0, 1, 2, 3}
+    cfg = load("CutRearrange", "smoke")
+    obs = torch.rand(400, 50, 3)
+    mirrored, _, _, _ = mirror_batch(obs, obs[:, :5], obs[:, :7], torch.ones(400, 10), mirror_action_signs(cfg), x_only)
+    torch.testing.assert_close(mirrored[..., 1:], obs[..., 1:])  # heights and z untouched
+    flipped = (mirrored[..., 0] - obs[..., 0]).abs().amax(dim=1) > 1e-6
+    assert 100 < int(flipped.sum()) < 300
+    with pytest.raises(ValueError, match="'y'"):
+        reflection_codes(3, "y", generator)

@@ -18,7 +18,7 @@ from pasta.train import policy_loop
 from pasta.train.bundle import untrained
 from pasta.train.datasets import TransitionSampler
 from pasta.train.entities import PairChamfer
-from pasta.train.policy_loop import PolicySettings, lr_at, train_policies
+from pasta.train.policy_loop import PolicySettings, lr_at, train_policies, weighted_rows
 from tests.train.helpers import heads_inputs
 
 SETTINGS = PolicySettings(steps=7, lr=3e-3, batch_size=4, point_noise=0.005, eval_every=3)
@@ -243,7 +243,7 @@ def test_mirrored_training_with_shape_quantiles_learns_and_is_set_for_cloud_set_
     falls; the policies that read latents or a tool state are left unmirrored."""
     cfg = cfg.model_copy(update={
         "policy": cfg.policy.model_copy(update={"frame": "dough", "shape_quantiles": 5}),
-        "train": cfg.train.model_copy(update={"policy_mirror": True})})
+        "train": cfg.train.model_copy(update={"policy_mirror": "xz"})})
     mirrored = PolicySettings.from_config(cfg, "pasta")
     assert mirrored.mirror_signs is not None and len(mirrored.mirror_signs[0]) == 10  # knife 3 + gripper 7
     assert PolicySettings.from_config(cfg, "shared_encoder_policy").mirror_signs is None
@@ -258,3 +258,15 @@ def test_mirrored_training_with_shape_quantiles_learns_and_is_set_for_cloud_set_
     result = train_policies(bundle, sampler, held_out, latents, settings, tmp_path / "p.pt")
     start, end = result.curve[0][1], result.curve[-1][1]
     assert end["policy_heldout_mse_cut"] < 0.8 * start["policy_heldout_mse_cut"], result.curve
+
+
+def test_first_steps_are_offered_first_step_weight_times_as_often(cfg):
+    settings = PolicySettings.from_config(cfg.model_copy(update={"train": cfg.train.model_copy(
+        update={"policy_first_step_weight": 7, "policy_mirror": "x"})}), "pasta")
+    assert settings.first_step_weight == 7 and settings.mirror_planes == "x"
+    assert PolicySettings.from_config(cfg, "pasta").mirror_signs is None  # "none" by default
+    transitions = np.array([(0, 0), (0, 1), (0, 2), (3, 0), (3, 1)])
+    rows = weighted_rows(transitions, 4)
+    counts = np.bincount(rows, minlength=len(transitions))
+    assert counts.tolist() == [4, 1, 1, 4, 1]
+    assert np.array_equal(weighted_rows(transitions, 1), np.arange(5))
