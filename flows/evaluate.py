@@ -39,6 +39,7 @@ from pasta.evaluate import (
     EvaluationResult,
     check_executor,
     evaluate_problem,
+    executor_label,
     plan_quality_metrics,
     render_result_strip,
     summary_metrics,
@@ -120,7 +121,7 @@ def log_seed(cfg: TaskConfig, results: Sequence[EvaluationResult], *, profile: s
         metrics.update(plan_quality_metrics(rows))
     with tracking.run(cfg.task, "evaluate", profile=profile, variant=variant, seed=seed, cfg=cfg,
                       parent_run_id=parent_run_id,
-                      extra_tags={**tags, "pasta.executor": executor, "pasta.plan": plan_source},
+                      extra_tags={**tags, "pasta.executor": executor_label(cfg, executor), "pasta.plan": plan_source},
                       started_at=started_at) as active:
         tracking.log_metrics(metrics)
         tracking.log_table(rows, "tables/evaluation.json")
@@ -170,7 +171,8 @@ def evaluate(task_name: str, profile: str = "smoke", variant: str = "pasta", see
     performance = np.array([s["performance"] for s in per_seed])
     success = np.array([s["success_rate"] for s in per_seed])
     summary = {
-        "task": cfg.task, "profile": profile, "variant": variant, "plan": plan_source, "executor": executor,
+        "task": cfg.task, "profile": profile, "variant": variant, "plan": plan_source,
+        "executor": executor_label(cfg, executor),
         "experiment": experiment, "seeds": seeds,
         "performance_mean": float(performance.mean()), "performance_std": float(performance.std()),
         "success_mean": float(success.mean()), "success_std": float(success.std()),

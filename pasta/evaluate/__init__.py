@@ -15,6 +15,7 @@ from pasta.evaluate.execution import (
     check_executor,
     decode_set,
     execute_plan,
+    executor_label,
     park_tool,
 )
 from pasta.evaluate.metrics import plan_quality_metrics, planned_goal_distance, shape_distance, summary_metrics
@@ -40,6 +41,7 @@ __all__ = [
     "encode_scene",
     "evaluate_problem",
     "execute_plan",
+    "executor_label",
     "make_plan",
     "nearest_components",
     "park_tool",

@@ -43,7 +43,7 @@ if TYPE_CHECKING:
     from pasta.plan.result import Plan
 
 __all__ = ["EXECUTORS", "SKIP_CHAMFER", "Execution", "StepRecord", "already_reached", "check_executor", "decode_set",
-           "execute_plan", "park_tool", "policy_view", "run_skill"]
+           "execute_plan", "executor_label", "park_tool", "policy_view", "run_skill"]
 
 EXECUTORS = ("policy", "scripted")
 SKIP_CHAMFER = 1e-3  # official exec_threshold: the dough already is the subgoal (squared Chamfer units)
@@ -82,6 +82,15 @@ class Execution:
     steps: tuple[StepRecord, ...]
     final: Observation
     failure: str | None = None
+
+
+def executor_label(cfg: TaskConfig, executor: str) -> str:
+    """The executor as runs are tagged: ``executor``, or for the policy executor with ``eval.scripted_skills``,
+    ``policy+scripted:<skills>`` (e.g. ``policy+scripted:cut``), so that such a diagnostic run never counts as
+    the learned policies' cell of the plan x executor matrix."""
+    if executor == "policy" and cfg.eval.scripted_skills:
+        return f"policy+scripted:{','.join(cfg.eval.scripted_skills)}"
+    return executor
 
 
 def check_executor(executor: str) -> str:

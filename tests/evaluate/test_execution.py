@@ -11,7 +11,7 @@ from torch import nn
 
 from pasta.config import load
 from pasta.data.configurations import evaluation_problems, tool_clearance
-from pasta.evaluate.execution import already_reached, execute_plan
+from pasta.evaluate.execution import already_reached, execute_plan, executor_label
 from pasta.evaluate.policy_action import NonFiniteActionError, checked_action
 from pasta.evaluate.problem import prepare_problem
 from pasta.models.vae import VAEConfig
@@ -177,6 +177,9 @@ def test_skills_left_to_the_scripts_run_their_scripted_actions_under_the_policy_
     scripted = execute_plan(cfg, bundle, env, plan, "scripted", np.random.default_rng(0))
     assert policy.calls == 0
     np.testing.assert_array_equal(mixed.final.dough_points, scripted.final.dough_points)
+    # tagged apart, so the matrix's learned-policies cell never takes such a run
+    assert executor_label(cfg, "policy") == "policy+scripted:cut" and executor_label(cfg, "scripted") == "scripted"
+    assert executor_label(load("CutRearrange", "smoke", list(FAST)), "policy") == "policy"
     with pytest.raises(ValueError, match=r"\['lift'\]"):
         load("CutRearrange", "smoke", ["eval.scripted_skills=[cut, lift]"])
 
