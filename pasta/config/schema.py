@@ -256,6 +256,11 @@ class TrainConfig(Frozen):
     # batches. A skill's first step holds its approach (the knife's move to the cut's x is one step of 50),
     # which decides where the skill acts; drawn uniformly it is one sample in 50. 1: uniform (the appendix's).
     policy_first_step_weight: int = Field(default=1, ge=1)
+    # Share of policy samples (training and held-out) whose goal is a later state of the same demonstration
+    # (hindsight relabelling) instead of its target. Official 0.5 (model_spec §4); a hindsight goal taken
+    # before a cut separates the pieces does not show where the cut goes, so the first steps' labels are
+    # unpredictable from it.
+    policy_hindsight_ratio: float = Field(default=0.5, ge=0.0, le=1.0)
     # DAgger rounds after the policies' own loop (pasta/train/dagger.py; 0: none, the appendix's behaviour
     # cloning alone): each runs the oracle chains of dagger_problems fresh problems with the current policies
     # (the expert's action chunk instead at a share dagger_expert_share of the calls), labels every visited
@@ -293,8 +298,9 @@ class PolicyNetConfig(Frozen):
     ``encoder``: ``pointnet2``, the appendix's PointNet++ over the role-tagged union of the observation, tool
     and goal clouds; or ``pointnet``, a compact PointNet per cloud, max-pooled and concatenated, about 25x
     fewer operations per training step. The tool-concat ablation follows the choice; the latent-set policy
-    has no point encoder. ``frame``, ``phase_input``, ``chunk`` and ``shape_quantiles`` shape the set policy
-    (PASTA's) only: the two policy ablations of Table 5 keep the appendix's inputs and one action per call.
+    has no point encoder. ``frame``, ``phase_input``, ``chunk``, ``shape_quantiles`` and ``gap_features`` shape
+    the set policy (PASTA's) only: the two policy ablations of Table 5 keep the appendix's inputs and one action
+    per call.
     """
 
     encoder: Literal[POLICY_ENCODERS] = "pointnet2"
@@ -317,6 +323,10 @@ class PolicyNetConfig(Frozen):
     # goal's gap lies, as numbers rather than as max-pooled features. 0 (the appendix's): none; otherwise at
     # least 2 (the minimum and the maximum, and evenly spaced levels between).
     shape_quantiles: int = Field(default=0, ge=0)
+    # The widest gap per axis of the observation and goal clouds (its two ends relative to the tool's centre,
+    # and whether it is at least DBSCAN's 0.03 wide) given to the set policy's action head: where a cut's goal
+    # splits, as numbers (pasta.models.policy.cloud_gaps). False (the appendix's): not given.
+    gap_features: bool = False
     # Points of the observation and goal clouds a policy sees, in training and in execution (each cloud
     # resampled to this many; the tool keeps its surface points). [S] §3.1: 1000.
     points: int = Field(default=1000, ge=8)

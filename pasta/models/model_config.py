@@ -65,12 +65,13 @@ class ModelConfig:
         return replace(self, policy=replace(self.policy, point_encoder=name),
                        tool_concat_policy=replace(self.tool_concat_policy, point_encoder=name))
 
-    def with_policy_io(self, frame: str, phase_input: bool, chunk: int, shape_quantiles: int = 0) -> ModelConfig:
-        """This config with the set policy's cloud frame (``world`` or ``dough``), phase input, actions per call
-        and shape quantiles (e.g. from the task config's ``policy.frame``, ``policy.phase_input``,
-        ``policy.chunk`` and ``policy.shape_quantiles``)."""
+    def with_policy_io(self, frame: str, phase_input: bool, chunk: int, shape_quantiles: int = 0,
+                       gap_features: bool = False) -> ModelConfig:
+        """This config with the set policy's cloud frame (``world`` or ``dough``), phase input, actions per call,
+        shape quantiles and gap features (e.g. from the task config's ``policy.frame``, ``policy.phase_input``,
+        ``policy.chunk``, ``policy.shape_quantiles`` and ``policy.gap_features``)."""
         return replace(self, policy=replace(self.policy, frame=frame, phase_input=phase_input, chunk=chunk,
-                                            shape_quantiles=shape_quantiles))
+                                            shape_quantiles=shape_quantiles, gap_features=gap_features))
 
     def to_dict(self) -> dict[str, Any]:
         """Nested plain dict (tuples stay tuples)."""

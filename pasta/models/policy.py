@@ -38,7 +38,10 @@ __all__ = [
     "FilteredEntities",
     "PolicyConfig",
     "SetPolicy",
+    "GAP_MIN",
+    "GAP_SCALE",
     "check_point_encoder",
+    "cloud_gaps",
     "cloud_quantiles",
     "dough_frame",
     "encode_clouds",
@@ -141,6 +144,46 @@ def cloud_quantiles(cloud: torch.Tensor, levels: int) -> torch.Tensor:
     return (quantiles.permute(1, 2, 0).reshape(cloud.shape[0], 3 * levels) * CENTRE_OFFSET_SCALE).to(cloud.dtype)
 
 
+GAP_MIN = 0.03  # DBSCAN's eps (pasta.data.configurations.MIN_PIECE_GAP): a gap this wide separates pieces
+GAP_SCALE = 50.0  # metres -> head inputs for gap ends relative to the tool: a 0.01 miss becomes 0.5
+
+
+def cloud_gaps(cloud: torch.Tensor, origin: torch.Tensor) -> torch.Tensor:
+    """Each axis's widest gap between a cloud's points, relative to ``origin``, times ``GAP_SCALE``
+    (``policy.gap_features``).
+
+    Along each axis the coordinates are sorted and the widest step between neighbours is found. A step of at
+    least ``GAP_MIN`` separates pieces (a cut's goal: its pieces slid 0.10-0.13 apart); its two ends are where
+    the cut's faces lie. Given relative to the tool's centre and finely scaled, the knife's move to the cut
+    is a difference of two inputs of order 1 rather than of order 0.1 (the dough-frame offsets' scale),
+    which the action head learns within the budget. Narrower steps are sampling noise: both ends are then the
+    axis's median and the flag is 0, so that a whole piece gives steady inputs.
+
+    Args:
+        cloud: ``(B, N, 3)``, ``N >= 2``.
+        origin: ``(B, 3)``, e.g. the tool's centre.
+
+    Returns:
+        ``(B, 9)``: per axis (x, y, z) the gap's lower end, its upper end and a flag (1 where there is a gap).
+    """
+    if cloud.ndim != 3 or cloud.shape[-1] != 3 or cloud.shape[1] < 2:
+        raise ValueError(f"cloud gaps need a cloud of shape (B, N >= 2, 3), got {tuple(cloud.shape)}")
+    if origin.shape != (cloud.shape[0], 3):
+        raise ValueError(f"the gaps' origin must have shape ({cloud.shape[0]}, 3), got {tuple(origin.shape)}")
+    coords = cloud.float().sort(dim=1).values  # (B, N, 3)
+    steps = coords[:, 1:] - coords[:, :-1]  # (B, N - 1, 3)
+    widest, at = steps.max(dim=1)  # (B, 3)
+    lower = coords.gather(1, at.unsqueeze(1)).squeeze(1)
+    upper = coords.gather(1, (at + 1).unsqueeze(1)).squeeze(1)
+    median = coords[:, (coords.shape[1] - 1) // 2]
+    has_gap = widest >= GAP_MIN
+    origin = origin.float()
+    lower = (torch.where(has_gap, lower, median) - origin) * GAP_SCALE
+    upper = (torch.where(has_gap, upper, median) - origin) * GAP_SCALE
+    features = torch.stack([lower, upper, has_gap.to(lower.dtype)], dim=-1)  # (B, 3, 3)
+    return features.reshape(cloud.shape[0], 9).to(cloud.dtype)
+
+
 def uniform_point_noise(points: torch.Tensor, amplitude: float, generator: torch.Generator | None) -> torch.Tensor:
     """``points + U(-amplitude, amplitude)`` per coordinate (official ``obs_noise`` = 0.005, uniform)."""
     unit = random_draws.rand(points.shape, generator, dtype=points.dtype, device=points.device)
@@ -207,6 +250,8 @@ class PolicyConfig:
         shape_quantiles: the action head also reads this many coordinate quantiles per axis of the
             observation and goal clouds, in the policy's frame (``cloud_quantiles``); 0: none. Set from the
             task config's ``policy.shape_quantiles``.
+        gap_features: the action head also reads the widest gap per axis of the observation and goal clouds,
+            relative to the tool's centre (``cloud_gaps``). Set from the task config's ``policy.gap_features``.
     """
 
     point_encoder: str = "pointnet2"
@@ -218,6 +263,7 @@ class PolicyConfig:
     phase_input: bool = False
     chunk: int = 1
     shape_quantiles: int = 0
+    gap_features: bool = False
 
     def __post_init__(self) -> None:
         check_point_encoder(self.point_encoder)
@@ -248,6 +294,7 @@ class SetPolicy(nn.Module):
         self.action_dim = action_dim
         self.encoder = point_encoder(config.point_encoder, config.encoder, config.pointnet, n_clouds=3)
         extra = (6 if config.frame == "dough" else 0) + (1 if config.phase_input else 0) + 6 * config.shape_quantiles
+        extra += 18 if config.gap_features else 0
         self.head = mlp((self.encoder.out_dim + extra, *config.action_head_channels, action_dim * config.chunk),
                         final_activation=False)
         orthogonal_init_(self.head)
@@ -264,6 +311,9 @@ class SetPolicy(nn.Module):
         if self.config.shape_quantiles:
             features += [cloud_quantiles(clouds[0], self.config.shape_quantiles),
                          cloud_quantiles(clouds[2], self.config.shape_quantiles)]
+        if self.config.gap_features:
+            tool_centre = clouds[1].mean(dim=1)
+            features += [cloud_gaps(clouds[0], tool_centre), cloud_gaps(clouds[2], tool_centre)]
         if self.config.phase_input:
             if phase is None or phase.shape != (obs_points.shape[0],):
                 raise ValueError(f"this policy reads the skill's phase: need phase of shape ({obs_points.shape[0]},), "

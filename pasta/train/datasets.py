@@ -117,13 +117,19 @@ class TransitionSampler:
         cloud_points: points of the policy samples' observation and goal clouds (default: the dataset's
             observation size, ``cfg.policy.points`` in training).
         chunk: actions per policy sample's ``action_chunks`` (``cfg.policy.chunk`` in training).
+        hindsight_ratio: share of policy samples whose goal is a later state of the same trajectory instead of
+            its target (``cfg.train.policy_hindsight_ratio``; the official 0.5).
     """
 
     def __init__(self, demos: Demonstrations, table: EntityTable, skills: tuple[SkillConfig, ...],
                  trajectories: np.ndarray, filter_epsilon: float, chamfer: PairChamfer,
-                 cloud_points: int | None = None, chunk: int = 1) -> None:
+                 cloud_points: int | None = None, chunk: int = 1,
+                 hindsight_ratio: float = HINDSIGHT_GOAL_RATIO) -> None:
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1, got {chunk}")
+        if not 0.0 <= hindsight_ratio <= 1.0:
+            raise ValueError(f"hindsight_ratio must lie in [0, 1], got {hindsight_ratio}")
+        self.hindsight_ratio = hindsight_ratio
         self.demos, self.table, self.skills = demos, table, skills
         self.chunk = chunk
         self.cloud_points = cloud_points or demos.points.shape[1]
@@ -177,7 +183,7 @@ class TransitionSampler:
         """The first ``limit`` valid policy samples among ``rows``; ``None`` when none is valid."""
         spec = self.skills[skill]
         hindsight = self._hindsight_states(rows, rng)
-        use_target = rng.random(len(rows)) >= HINDSIGHT_GOAL_RATIO
+        use_target = rng.random(len(rows)) >= self.hindsight_ratio
         goals = np.where(use_target, self.demos.target_state[rows[:, 0]], hindsight)
         epsilon = 0.0 if spec.entities_out > max(spec.input_counts) else self.filter_epsilon
         allowed = {*spec.input_counts, spec.entities_out}

@@ -97,11 +97,11 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     latents = encode_entities(vae, data.table.clouds, device)
     chamfer = PairChamfer(data.table)
     epsilon = DEFAULT_FILTER_EPSILON if spec.filter_entities else 0.0
-    points, chunk = cfg.policy.points, cfg.policy.chunk
+    points, chunk, hindsight = cfg.policy.points, cfg.policy.chunk, cfg.train.policy_hindsight_ratio
     train_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_train, epsilon, chamfer, points,
-                                      chunk)
+                                      chunk, hindsight)
     test_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_heldout, epsilon, chamfer, points,
-                                     chunk)
+                                     chunk, hindsight)
     train_states = np.concatenate([np.arange(data.demos.first_state[i], data.demos.target_state[i] + 1)
                                    for i in data.heads_train])
     train_entities = torch.from_numpy(data.table.of_states(train_states)).to(device)

@@ -530,3 +530,12 @@ def test_bad_skill_entity_counts_are_refused(conf_copy, counts):
 def test_skill_input_counts():
     gather, move = load("GatherMove", "smoke").skills
     assert (gather.input_counts, move.input_counts) == ((1, 2, 3), (1,))
+
+
+def test_gap_features_and_the_hindsight_ratio_default_to_the_appendixs_and_are_validated():
+    cfg = load("CutRearrange", "small")
+    assert cfg.policy.gap_features is False and cfg.train.policy_hindsight_ratio == 0.5
+    changed = load("CutRearrange", "small", ["policy.gap_features=true", "train.policy_hindsight_ratio=0.25"])
+    assert changed.policy.gap_features is True and changed.train.policy_hindsight_ratio == 0.25
+    with pytest.raises(ConfigError, match=r"policy_hindsight_ratio"):
+        load("CutRearrange", "small", ["train.policy_hindsight_ratio=1.5"])

@@ -6,7 +6,15 @@ import pytest
 import torch
 
 from pasta.models import PolicyConfig, SetPolicy, filter_entities, uniform_point_noise
-from pasta.models.policy import CENTRE_OFFSET_SCALE, cloud_quantiles, dough_frame, tag_point_roles
+from pasta.models.policy import (
+    CENTRE_OFFSET_SCALE,
+    GAP_MIN,
+    GAP_SCALE,
+    cloud_gaps,
+    cloud_quantiles,
+    dough_frame,
+    tag_point_roles,
+)
 from tests.models.synthetic import box_clouds, goal_offset_problem, tiny_encoder, train
 
 
@@ -161,3 +169,52 @@ def test_a_quantile_policy_sees_where_the_goal_splits():
         assert not torch.allclose(policy(obs, tool, goal(0.3)), policy(obs, tool, goal(0.6)), atol=1e-5)
     with pytest.raises(ValueError, match="shape_quantiles"):
         PolicyConfig(shape_quantiles=1)
+
+
+def _slow_cloud_gaps(cloud: torch.Tensor, origin: torch.Tensor) -> torch.Tensor:
+    """``cloud_gaps`` by hand: per batch and axis, a loop over the sorted coordinates."""
+    rows = []
+    for points, centre in zip(cloud.tolist(), origin.tolist(), strict=True):
+        row = []
+        for axis in range(3):
+            values = sorted(p[axis] for p in points)
+            widest, lower, upper = -1.0, 0.0, 0.0
+            for a, b in zip(values[:-1], values[1:], strict=True):
+                if b - a > widest:
+                    widest, lower, upper = b - a, a, b
+            if widest < GAP_MIN:
+                lower = upper = values[(len(values) - 1) // 2]
+            row += [(lower - centre[axis]) * GAP_SCALE, (upper - centre[axis]) * GAP_SCALE, float(widest >= GAP_MIN)]
+        rows.append(row)
+    return torch.tensor(rows)
+
+
+def test_cloud_gaps_match_a_slow_reference_and_find_a_cuts_faces():
+    gen = torch.Generator().manual_seed(2)
+    piece = torch.rand(3, 200, 3, generator=gen) * torch.tensor([0.3, 0.04, 0.06])
+    cut = piece.clone()
+    cut[..., 0] += 0.11 * (piece[..., 0] > 0.1)  # the part beyond x = 0.1 slid 0.11 along x
+    tool = torch.rand(3, 3, generator=gen)
+    for cloud in (piece, cut):
+        assert torch.allclose(cloud_gaps(cloud, tool), _slow_cloud_gaps(cloud, tool), atol=1e-5)
+    assert cloud_gaps(piece, tool)[:, [2, 5, 8]].sum() == 0  # a whole piece has no gap on any axis
+    features = cloud_gaps(cut, tool)
+    assert features[:, 2].tolist() == [1.0, 1.0, 1.0] and features[:, [5, 8]].sum() == 0
+    faces = torch.stack([piece[..., 0].masked_fill(piece[..., 0] > 0.1, -1).amax(1),
+                         piece[..., 0].masked_fill(piece[..., 0] <= 0.1, 9).amin(1) + 0.11], dim=1)
+    assert torch.allclose(features[:, :2], (faces - tool[:, :1]) * GAP_SCALE, atol=1e-5)
+    with pytest.raises(ValueError, match=r"\(B, N >= 2, 3\)"):
+        cloud_gaps(piece[:, :1], tool)
+    with pytest.raises(ValueError, match="origin"):
+        cloud_gaps(piece, tool[:2])
+
+
+def test_a_gap_policy_reads_the_goals_gap():
+    policy = SetPolicy(4, PolicyConfig(point_encoder="pointnet", frame="dough", gap_features=True)).eval()
+    assert policy.head[0].in_features == policy.encoder.out_dim + 6 + 18
+    gen = torch.Generator().manual_seed(5)
+    obs, tool = torch.rand(1, 64, 3, generator=gen), torch.rand(1, 16, 3, generator=gen)
+    piece = torch.rand(1, 64, 3, generator=gen)
+    goals = [piece + 0.2 * (piece[..., :1] > split) * torch.tensor([1.0, 0.0, 0.0]) for split in (0.3, 0.6)]
+    with torch.no_grad():
+        assert not torch.allclose(policy(obs, tool, goals[0]), policy(obs, tool, goals[1]), atol=1e-5)

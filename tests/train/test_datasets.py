@@ -124,3 +124,21 @@ def test_policy_samples_have_the_configured_number_of_points_drawn_from_the_same
     for dense, sparse in zip(a.obs_points.numpy(), b.obs_points.numpy(), strict=True):  # a subset of the same piece
         gaps = np.linalg.norm(sparse[:, None] - dense[None], axis=-1).min(axis=1)
         assert gaps.max() < 0.05
+
+
+def test_the_hindsight_ratio_sets_how_many_policy_goals_are_later_states(cfg, training_data):
+    """Ratio 0: every goal is the demonstration's target; ratio 1: every goal is a state of the trajectory
+    between the sample's step and its end (for the cut, its first steps' goals are the uncut slab)."""
+    demos, table = training_data.demos, training_data.table
+    rows = np.array([[i, 0] for i in range(10) if demos.skill_index[i] == 0])
+    targets = [table.state_entities[demos.target_state[i]].tolist() for i, _ in rows]
+    goals = {}
+    for ratio in (0.0, 1.0):
+        sampler = TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table),
+                                    hindsight_ratio=ratio)
+        samples = sampler.policy_samples(0, np.repeat(rows, 8, axis=0), np.random.default_rng(1), limit=8 * len(rows))
+        goals[ratio] = [ids.tolist() for ids in samples.goal_ids]
+    assert goals[0.0] == [t for t in targets for _ in range(8)]
+    assert sum(g == t for g, t in zip(goals[1.0], [t for t in targets for _ in range(8)], strict=True)) < len(rows) * 8
+    with pytest.raises(ValueError, match="hindsight_ratio.*1.5"):
+        TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table), hindsight_ratio=1.5)

@@ -236,13 +236,13 @@ def test_visited_states_join_every_batch_and_pull_the_policy_to_their_labels(tmp
     assert error_with < 0.5 * error_without, (error_with, error_without)
 
 
-def test_mirrored_training_with_shape_quantiles_learns_and_is_set_for_cloud_set_policies_only(tmp_path, cfg,
-                                                                                              training_data):
-    """``train.policy_mirror`` and ``policy.shape_quantiles``: the set policy trains on reflected samples (the
-    batch's actions sign-flipped as the tools' kinematics say, ``pasta.train.mirror``) and its held-out MSE
-    falls; the policies that read latents or a tool state are left unmirrored."""
+def test_mirrored_training_with_shape_and_gap_features_learns_and_is_set_for_cloud_set_policies_only(
+        tmp_path, cfg, training_data):
+    """``train.policy_mirror``, ``policy.shape_quantiles`` and ``policy.gap_features``: the set policy trains on
+    reflected samples (the batch's actions sign-flipped as the tools' kinematics say, ``pasta.train.mirror``) and
+    its held-out MSE falls; the policies that read latents or a tool state are left unmirrored."""
     cfg = cfg.model_copy(update={
-        "policy": cfg.policy.model_copy(update={"frame": "dough", "shape_quantiles": 5}),
+        "policy": cfg.policy.model_copy(update={"frame": "dough", "shape_quantiles": 5, "gap_features": True}),
         "train": cfg.train.model_copy(update={"policy_mirror": "xz"})})
     mirrored = PolicySettings.from_config(cfg, "pasta")
     assert mirrored.mirror_signs is not None and len(mirrored.mirror_signs[0]) == 10  # knife 3 + gripper 7
@@ -250,7 +250,7 @@ def test_mirrored_training_with_shape_quantiles_learns_and_is_set_for_cloud_set_
     assert PolicySettings.from_config(cfg, "tool_concat_policy").mirror_signs is None
     config, _, latents, prior, _, _ = heads_inputs(cfg, training_data, "pasta")
     bundle = untrained(cfg, "pasta", prior, model_config=config, seed=0)
-    assert bundle.model_config.policy.shape_quantiles == 5
+    assert bundle.model_config.policy.shape_quantiles == 5 and bundle.model_config.policy.gap_features
     sampler = TransitionSampler(training_data.demos, training_data.table, cfg.skills, training_data.heads_train,
                                 0.0, PairChamfer(training_data.table))
     held_out = [sampler.policy_samples(k, sampler.transitions[k], np.random.default_rng(0), 8) for k in range(2)]
@@ -270,3 +270,4 @@ def test_first_steps_are_offered_first_step_weight_times_as_often(cfg):
     counts = np.bincount(rows, minlength=len(transitions))
     assert counts.tolist() == [4, 1, 1, 4, 1]
     assert np.array_equal(weighted_rows(transitions, 1), np.arange(5))
+
