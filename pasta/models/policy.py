@@ -155,9 +155,10 @@ def cloud_gaps(cloud: torch.Tensor, origin: torch.Tensor) -> torch.Tensor:
     Along each axis the coordinates are sorted and the widest step between neighbours is found. A step of at
     least ``GAP_MIN`` separates pieces (a cut's goal: its pieces slid 0.10-0.13 apart); its two ends are where
     the cut's faces lie. Given relative to the tool's centre and finely scaled, the knife's move to the cut
-    is a difference of two inputs of order 1 rather than of order 0.1 (the dough-frame offsets' scale),
-    which the action head learns within the budget. Narrower steps are sampling noise: both ends are then the
-    axis's median and the flag is 0, so that a whole piece gives steady inputs.
+    is a difference of two inputs of order 1 rather than of order 0.1 (the dough-frame offsets' scale); at
+    `small`'s budget this did not raise the closed-loop score (docs/training.md, "Gap features"). Narrower
+    steps are sampling noise: both ends are then the axis's median and the flag is 0, so that a whole piece
+    gives steady inputs.
 
     Args:
         cloud: ``(B, N, 3)``, ``N >= 2``.

@@ -210,6 +210,8 @@ def test_cloud_gaps_match_a_slow_reference_and_find_a_cuts_faces():
 
 
 def test_a_gap_policy_reads_the_goals_gap():
+    """The head reads the pooled features, the dough-frame offsets and the gaps of the observation and goal
+    relative to the tool's centre, in that order: the output is that head applied by hand."""
     policy = SetPolicy(4, PolicyConfig(point_encoder="pointnet", frame="dough", gap_features=True)).eval()
     assert policy.head[0].in_features == policy.encoder.out_dim + 6 + 18
     gen = torch.Generator().manual_seed(5)
@@ -217,4 +219,11 @@ def test_a_gap_policy_reads_the_goals_gap():
     piece = torch.rand(1, 64, 3, generator=gen)
     goals = [piece + 0.2 * (piece[..., :1] > split) * torch.tensor([1.0, 0.0, 0.0]) for split in (0.3, 0.6)]
     with torch.no_grad():
+        for goal in goals:
+            clouds, offsets = dough_frame(obs, tool, goal)
+            centre = clouds[1].mean(dim=1)
+            inputs = torch.cat([policy.encoder(*clouds), offsets, cloud_gaps(clouds[0], centre),
+                                cloud_gaps(clouds[2], centre)], dim=-1)
+            expected = policy.head(inputs) * policy.config.output_scale
+            assert torch.allclose(policy(obs, tool, goal), expected, atol=1e-6)
         assert not torch.allclose(policy(obs, tool, goals[0]), policy(obs, tool, goals[1]), atol=1e-5)
