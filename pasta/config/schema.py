@@ -72,6 +72,9 @@ class SimConfig(Frozen):
     # simulator had none (0); at our grids the dough then leaks into the 0.05-thick knife and a cut
     # never separates (docs/simulator.md).
     tool_expel_rate: float = Field(default=0.1, ge=0, le=1)
+    # A knife's V edge stops this far below the floor (a cutting board under the dough): the knife's y
+    # lower bound becomes floor + blade_depth - this (pasta.sim.engine.stopped_knife). None: no stop.
+    knife_floor_depth: float | None = Field(default=None, ge=0)
     arch: Literal["cpu", "cuda", "auto"] = "cpu"
     # How P2G scatters to the grid: "serial" (no float atomics: fixed chunks of particles, each scattered
     # serially into its own grid, the chunks in parallel and summed in a fixed order: bit-reproducible at
@@ -216,6 +219,10 @@ class DataConfig(Frozen):
     # "cell_middle" moved to the middle of their grid cell, the only place a knife cuts cleanly on the
     # simulator's grid (pasta.data.configurations.knife_plane).
     cut_planes: Literal["official", "cell_middle"] = "official"
+    # Where a cut's knife is placed before the skill (pasta.data.skills.cut.cut_start), in demonstrations and
+    # evaluation alike: "centre" over the attended dough's centre of mass (the official reset pose); "cut"
+    # over the subgoal's split, so the skill, scripted or learned, starts by going down.
+    knife_start: Literal["centre", "cut"] = "centre"
 
 
 class TrainConfig(Frozen):

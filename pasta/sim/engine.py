@@ -29,6 +29,7 @@ import taichi as ti
 from pasta.config.schema import MaterialConfig, SimConfig, ToolConfig
 from pasta.sim.quaternion import axis_angle_to_quat, quat_mul, quat_normalised, quat_to_matrix
 from pasta.sim.runtime import ensure_taichi
+from pasta.sim.shapes import floor_height
 from pasta.sim.svd3 import fast_svd
 from pasta.sim.tool_geometry import box_sdf_normal, capsule_sdf_normal, knife_sdf_normal
 
@@ -1064,5 +1065,16 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
     simulator.set_gravity(sim.gravity_m_s2)
     simulator.set_softness(sim.contact_softness)
     simulator.set_expel_rates(expel_rates(sim, tools))
-    simulator.set_tools(tools)
+    simulator.set_tools(tuple(stopped_knife(sim, t) for t in tools))
     return simulator
+
+
+def stopped_knife(sim: SimConfig, tool: ToolConfig) -> ToolConfig:
+    """``tool`` with a knife's y lower bound raised so that its V edge stops ``sim.knife_floor_depth`` below
+    the floor; any other tool, or no ``knife_floor_depth``, unchanged."""
+    if tool.kind != "knife" or sim.knife_floor_depth is None:
+        return tool
+    lowest = floor_height(sim) + tool.blade_depth - sim.knife_floor_depth
+    lower = (tool.lower_bound[0], max(tool.lower_bound[1], lowest), tool.lower_bound[2])
+    upper = (tool.upper_bound[0], max(tool.upper_bound[1], lower[1]), tool.upper_bound[2])
+    return tool.model_copy(update={"lower_bound": lower, "upper_bound": upper})

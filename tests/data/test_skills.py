@@ -280,6 +280,30 @@ def test_gather_squeezes_the_scattered_dough_into_a_pile():
     assert spread_after[1 - gap_axis] < spread_before[1 - gap_axis] + 0.01, (spread_before, spread_after)
 
 
+def test_the_knife_is_placed_over_the_cut_so_the_skill_starts_going_down():
+    """With ``data.knife_start: cut`` the cut's position comes from the subgoal at placement: over the
+    target's split (a third of the way along the dough here, moved to a grid cell's middle), at the dough's
+    centre z; the scripted cut then takes no step along x before the knife is in the dough. The official
+    ``centre`` places it over the dough's centre of mass."""
+    centred, _, _ = cut_problem("smoke")
+    dough = centred.particles()
+    split = dough[:, 0].min() + np.ptp(dough[:, 0]) / 3
+    target = dough.copy()
+    target[target[:, 0] <= split, 0] -= 0.1
+    pose = place_tool_for_skill(centred, "cut", None, target)  # data.knife_start: centre (official)
+    np.testing.assert_allclose(pose.pos[0], dough[:, 0].mean(), atol=1e-3)
+    env = env_for("CutRearrange", "smoke", {"data.knife_start": "cut"})
+    settled(env, default_configuration(env.cfg, np.random.default_rng(0)))
+    np.testing.assert_array_equal(env.particles(), dough)
+    pose = place_tool_for_skill(env, "cut", None, target)
+    assert abs(pose.pos[0] - split) <= 0.5 / env.cfg.sim.n_grid + 0.005, (pose.pos, split)
+    assert abs(pose.pos[0] * env.cfg.sim.n_grid % 1.0 - 0.5) < 1e-4, pose.pos  # a cell's middle
+    np.testing.assert_allclose(pose.pos[2], dough[:, 2].mean(), atol=1e-3)
+    actions = scripted_actions(env, "cut", target)[:, env.tool_action_slice("knife")]
+    assert actions[0, 1] < 0, actions[:3]  # down at once
+    assert np.all(actions[:5, 0] == 0), actions[:6]
+
+
 def test_cut_at_the_small_grid_leaves_two_separate_pieces():
     """Small's knife expels dough at 0.4 (conf/profiles/small.yaml): the cut leaves two DBSCAN pieces with no
     particle of one within eps of the other (no floor smear joining them), the left one moved to -x. Its

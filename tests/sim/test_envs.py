@@ -13,7 +13,7 @@ from sklearn.cluster import DBSCAN
 
 from pasta.config import load
 from pasta.config.schema import TASK_NAMES
-from pasta.sim.engine import ActionError
+from pasta.sim.engine import ActionError, stopped_knife
 from pasta.sim.envs import DoughConfiguration, DoughEnv, ToolPose, default_configuration, make_env
 from pasta.sim.tool_points import world_sdf
 
@@ -286,3 +286,23 @@ def test_demo_cut_makes_two_pieces_at_the_paper_grid(tmp_path):
     env = make_env(load("CutRearrange", "paper"))
     demo.run_demo(env)
     assert n_clusters(env.particles()) == 2
+
+
+def test_a_knife_stops_its_edge_knife_floor_depth_below_the_floor(envs):
+    """``sim.knife_floor_depth``: driven straight down, the knife's edge stops that far below the floor (its y
+    lower bound, ``stopped_knife``); without it the knife goes on down. Other tools keep their bounds."""
+    stopped = make_env(load("CutRearrange", "smoke", {"sim.knife_floor_depth": 0.02}))
+    knife = stopped.tool("knife")
+    lowest = stopped.floor_y + knife.blade_depth - 0.02
+    assert stopped_knife(stopped.cfg.sim, stopped.tool("gripper")) == stopped.tool("gripper")
+    assert stopped_knife(stopped.cfg.sim, knife).lower_bound[1] == pytest.approx(lowest)
+    finals = []
+    for env in (stopped, envs["CutRearrange"]):
+        reset(env)
+        env.teleport_tool("knife", (0.12, lowest + 0.05, 0.5))  # clear of the dough
+        down = env.action_for("knife", np.array([0.0, -1.0, 0.0]))
+        for _ in range(15):
+            obs = env.step(down)
+        finals.append(float(obs.tool_states[0, 1]))
+    assert finals[0] == pytest.approx(lowest, abs=1e-5)
+    assert finals[1] < lowest - 0.01

@@ -140,8 +140,10 @@ def start_pose_for_skill(env: DoughEnv, skill: str, attention: np.ndarray | None
     ============ =========================================================================
     skill        start pose (dough = the attended particles)
     ============ =========================================================================
-    cut          knife over the dough's centre of mass (x, z), its edge 0.03 above the dough
-                 top (at least the configured height), as env_spec 2.5 / CutRearrange
+    cut          knife over the dough's centre of mass (x, z), or with ``data.knife_start: cut``
+                 over the target's split (x in a grid cell's middle; the dough's middle without a
+                 two-piece target); its edge 0.03 above the dough top (at least the configured
+                 height), as env_spec 2.5 / CutRearrange
     push         pusher at contact height just behind the dough, facing the target's centre
                  of mass (turned about y); without ``target_points``, on the +x side facing
                  -x (env_spec 2.5)
@@ -164,9 +166,9 @@ def place_tool_for_skill(env: DoughEnv, skill: str, attention: np.ndarray | None
     """Teleport the skill's tool to its start pose (:func:`start_pose_for_skill`); returns the pose.
 
     Run it after the dough has settled and before :func:`scripted_actions`, whose first motions
-    then cost no steps. Only the push needs ``target_points`` to face the target; the other tools'
-    start poses depend on the attended dough alone. No simulation step is taken
-    (:meth:`DoughEnv.teleport_tool`).
+    then cost no steps. The push needs ``target_points`` to face the target, and the cut
+    (``data.knife_start: cut``) to find the split; the other tools' start poses depend on the
+    attended dough alone. No simulation step is taken (:meth:`DoughEnv.teleport_tool`).
 
     Some tools cannot approach the dough by themselves, so their skills need this placement: a
     rolling pin has no action along its axis, the GatherMove gripper none in y and the spatulas

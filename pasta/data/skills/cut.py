@@ -47,9 +47,19 @@ def _knife_safe_y(tool: ToolConfig, scene: Scene) -> float:
 
 
 def cut_start(env: DoughEnv, tool_name: str, scene: Scene) -> ToolPose:
+    """The knife at the dough's centre z, its edge ``KNIFE_CLEARANCE`` above the dough top, and in x
+    (``data.knife_start``) over the attended dough's centre of mass (``centre``, the official reset pose)
+    or over the cut (``cut``: :func:`_cut_plan`'s x in the middle of a grid cell).
+
+    Over the cut, the skill, scripted or learned, has nothing to do along x before going down: the
+    step that carries the cut's position is taken by the placement, which reads the subgoal exactly.
+    """
     tool = env.tool(tool_name)
     centre = scene.centre
-    return ToolPose(pos=(centre[0], _knife_safe_y(tool, scene), centre[2]), rot=env.tool_poses()[tool_name].rot)
+    x = centre[0]
+    if env.cfg.data.knife_start == "cut":
+        x = cell_middle(_cut_plan(scene)[0], env.cfg.sim.n_grid)
+    return ToolPose(pos=(x, _knife_safe_y(tool, scene), centre[2]), rot=env.tool_poses()[tool_name].rot)
 
 
 def cut(env: DoughEnv, m: Motion, scene: Scene) -> None:
