@@ -76,7 +76,7 @@ from scipy.spatial import cKDTree
 
 from pasta.config.schema import TaskConfig, ToolConfig
 from pasta.data.storage import split_by_configuration
-from pasta.geometry.entities import label_entities
+from pasta.geometry.entities import PIECE_GAP, label_entities
 from pasta.sim.envs.base import DoughConfiguration, ToolPose, occupied_tool_footprints
 from pasta.sim.envs.cut_rearrange import DOUGH_HEIGHT, KNIFE_CLEARANCE, knife_pose_above
 from pasta.sim.envs.gather_move import SEED_XZ_HIGH, SEED_XZ_LOW, SEED_Y_SPAN
@@ -114,7 +114,6 @@ __all__ = [
 OFFICIAL_FLOOR_Y = 0.0269     # where the official dough rested (CRS box centre 0.0669 - 0.04)
 FLOOR_RELATIVE_Y = 0.2        # configured tool heights below this were given relative to that floor
 WORKSPACE = (0.05, 0.95)      # x and z range every particle stays in
-MIN_PIECE_GAP = 0.03          # DBSCAN eps: pieces closer than this merge
 MIN_FLAT_CELLS = 2            # flat targets are at least this many grid cells thick
 TOOL_CLEARANCE = 0.01         # tools start at least this far from the dough ...
 CLEARANCE_CELLS = 1.5         # ... and at least 1.5 cells, so no grid node inside a tool touches it
@@ -663,9 +662,9 @@ def _check_stage(cfg: TaskConfig, stage: Stage, what: str) -> None:
     trees = {int(k): cKDTree(p[stage.labels == k]) for k in labels}
     for i, a in enumerate(labels):
         for b in labels[i + 1:]:
-            dist, _ = trees[int(b)].query(p[stage.labels == a], k=1, distance_upper_bound=MIN_PIECE_GAP)
+            dist, _ = trees[int(b)].query(p[stage.labels == a], k=1, distance_upper_bound=PIECE_GAP)
             if np.isfinite(dist).any():
-                raise RuntimeError(f"{what}: pieces {a} and {b} come closer than {MIN_PIECE_GAP}")
+                raise RuntimeError(f"{what}: pieces {a} and {b} come closer than {PIECE_GAP}")
 
 
 def _compact(labels: np.ndarray) -> np.ndarray:

@@ -27,8 +27,11 @@ def _as_points(points, name: str = "points") -> np.ndarray:
     return arr
 
 
+PIECE_GAP = 0.03  # DBSCAN's eps (env_spec §6): pieces closer than this are one entity
+
+
 def label_entities(
-    points: np.ndarray, eps: float = 0.03, min_samples: int = 6, min_points: int = 10
+    points: np.ndarray, eps: float = PIECE_GAP, min_samples: int = 6, min_points: int = 10
 ) -> np.ndarray:
     """Entity label of every point, by DBSCAN and the official post-filter (env_spec §6).
 

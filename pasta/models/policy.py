@@ -28,6 +28,7 @@ from torch import nn
 
 from pasta.config.schema import POLICY_ENCODERS, POLICY_FRAMES
 from pasta.geometry.distances import chamfer_distance
+from pasta.geometry.entities import PIECE_GAP
 from pasta.models import random_draws
 from pasta.models.cloud_pointnet import CloudPointNet, CloudPointNetConfig
 from pasta.models.layers import mlp, orthogonal_init_
@@ -38,7 +39,6 @@ __all__ = [
     "FilteredEntities",
     "PolicyConfig",
     "SetPolicy",
-    "GAP_MIN",
     "GAP_SCALE",
     "check_point_encoder",
     "cloud_gaps",
@@ -144,7 +144,6 @@ def cloud_quantiles(cloud: torch.Tensor, levels: int) -> torch.Tensor:
     return (quantiles.permute(1, 2, 0).reshape(cloud.shape[0], 3 * levels) * CENTRE_OFFSET_SCALE).to(cloud.dtype)
 
 
-GAP_MIN = 0.03  # DBSCAN's eps (pasta.data.configurations.MIN_PIECE_GAP): a gap this wide separates pieces
 GAP_SCALE = 50.0  # metres -> head inputs for gap ends relative to the tool: a 0.01 miss becomes 0.5
 
 
@@ -153,7 +152,7 @@ def cloud_gaps(cloud: torch.Tensor, origin: torch.Tensor) -> torch.Tensor:
     (``policy.gap_features``).
 
     Along each axis the coordinates are sorted and the widest step between neighbours is found. A step of at
-    least ``GAP_MIN`` separates pieces (a cut's goal: its pieces slid 0.10-0.13 apart); its two ends are where
+    least ``PIECE_GAP`` separates pieces (a cut's goal: its pieces slid 0.10-0.13 apart); its two ends are where
     the cut's faces lie. Given relative to the tool's centre and finely scaled, the knife's move to the cut
     is a difference of two inputs of order 1 rather than of order 0.1 (the dough-frame offsets' scale); at
     `small`'s budget this did not raise the closed-loop score (docs/training.md, "Gap features"). Narrower
@@ -177,7 +176,7 @@ def cloud_gaps(cloud: torch.Tensor, origin: torch.Tensor) -> torch.Tensor:
     lower = coords.gather(1, at.unsqueeze(1)).squeeze(1)
     upper = coords.gather(1, (at + 1).unsqueeze(1)).squeeze(1)
     median = coords[:, (coords.shape[1] - 1) // 2]
-    has_gap = widest >= GAP_MIN
+    has_gap = widest >= PIECE_GAP
     origin = origin.float()
     lower = (torch.where(has_gap, lower, median) - origin) * GAP_SCALE
     upper = (torch.where(has_gap, upper, median) - origin) * GAP_SCALE

@@ -15,7 +15,6 @@ from pasta.config.schema import TASK_NAMES
 from pasta.data.configurations import (
     CRS_FLAT_HEIGHT,
     CRS_FLAT_WIDTH,
-    MIN_PIECE_GAP,
     WORKSPACE,
     evaluation_problem,
     evaluation_problems,
@@ -29,7 +28,7 @@ from pasta.data.configurations import (
     tool_clearance,
 )
 from pasta.data.storage import split_by_configuration
-from pasta.geometry.entities import label_entities
+from pasta.geometry.entities import PIECE_GAP, label_entities
 from pasta.sim.shapes import floor_height
 from pasta.sim.tool_points import world_sdf
 
@@ -222,7 +221,7 @@ def test_particles_inside_workspace_and_above_floor(task):
     for p in problems_of(task):
         assert_in_workspace(cfg, p.initial.particles, f"problem {p.config_id} initial")
         assert_in_workspace(cfg, p.target, f"problem {p.config_id} target")
-        assert min_gap_between_pieces(p.initial.particles, p.initial.piece_labels) >= MIN_PIECE_GAP
+        assert min_gap_between_pieces(p.initial.particles, p.initial.piece_labels) >= PIECE_GAP
     for e in eval_problems_of(task):
         assert_in_workspace(cfg, e.initial.particles, f"eval {e.config_id} initial")
         assert_in_workspace(cfg, e.target, f"eval {e.config_id} target")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 import torch
 
+from pasta.geometry.entities import PIECE_GAP
 from pasta.models import PolicyConfig, SetPolicy, filter_entities, uniform_point_noise
 from pasta.models.policy import (
     CENTRE_OFFSET_SCALE,
-    GAP_MIN,
     GAP_SCALE,
     cloud_gaps,
     cloud_quantiles,
@@ -182,9 +182,9 @@ def _slow_cloud_gaps(cloud: torch.Tensor, origin: torch.Tensor) -> torch.Tensor:
             for a, b in zip(values[:-1], values[1:], strict=True):
                 if b - a > widest:
                     widest, lower, upper = b - a, a, b
-            if widest < GAP_MIN:
+            if widest < PIECE_GAP:
                 lower = upper = values[(len(values) - 1) // 2]
-            row += [(lower - centre[axis]) * GAP_SCALE, (upper - centre[axis]) * GAP_SCALE, float(widest >= GAP_MIN)]
+            row += [(lower - centre[axis]) * GAP_SCALE, (upper - centre[axis]) * GAP_SCALE, float(widest >= PIECE_GAP)]
         rows.append(row)
     return torch.tensor(rows)
 
