@@ -85,6 +85,11 @@ class SimConfig(Frozen):
     # (pasta.sim.svd3: closed-form, about a third of the cost on the CPU). Both share one convention, and
     # the adjoint (MPMSimulator.svd_grad) serves both.
     svd: Literal["taichi", "fast"] = "taichi"
+    # Host memory (MiB) a differentiable episode (GBTO) keeps for its backward pass: the substep frames and
+    # SVDs of its first steps, as many as fit (about 18 MiB a step at 5000 particles and 15 substeps), so
+    # the backward pass restores them instead of recomputing those steps; 0 recomputes every step from its
+    # checkpoint (least memory). The gradients are the same bit for bit (pasta.sim.autodiff).
+    adjoint_memory_mb: float = Field(default=1024, ge=0)
     steps_per_skill: int = Field(default=50, ge=1)
     settle_steps: int = Field(default=10, ge=0)
     observation_points: int = Field(default=1000, ge=1)

@@ -1,10 +1,13 @@
 """Reverse-mode gradients through whole episodes, with per-step checkpointing.
 
 The forward pass keeps one checkpoint (particles and tool poses) per
-environment step. The backward pass walks the steps in reverse: it restores the
-step's checkpoint, recomputes its substeps, seeds the adjoint of the step's last
-frame and runs the substep adjoints. Memory is one step of substep frames plus
-the checkpoints, whatever the episode length.
+environment step and, while they fit in the simulator's ``adjoint_memory_bytes``,
+the step's substep frames with their SVDs and grids (``MPMSimulator.record_step``).
+The backward pass walks the steps in reverse: it restores the step's substep
+frames, or recomputes them from its checkpoint where they were not kept, seeds
+the adjoint of the step's last frame and runs the substep adjoints. Both ways
+give the same gradients; keeping the frames spares the backward pass a forward
+step's work per step.
 """
 
 from dataclasses import dataclass
@@ -12,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from pasta.sim.engine import MPMSimulator
+from pasta.sim.engine import RECORD_CHANNELS, MPMSimulator
 
 STATE_KEYS = ("x", "v", "C", "F", "tool_pos", "tool_rot", "tool_gap")
 
@@ -22,7 +25,9 @@ class Episode:
     """A simulated episode: per-step states and what the backward pass needs.
 
     ``x``, ``v``: (T + 1, N, 3); ``tool_pos``: (T + 1, K, 3); ``tool_rot``: (T + 1, K, 4);
-    ``tool_gap``: (T + 1, K). ``checkpoints[t]`` is the full state before step t.
+    ``tool_gap``: (T + 1, K). ``checkpoints[t]`` is the full state before step t; ``recorded[t]``
+    its substep frames (``MPMSimulator.record_step``), or None where the backward pass
+    recomputes them.
     """
 
     x: np.ndarray
@@ -32,19 +37,32 @@ class Episode:
     tool_gap: np.ndarray
     actions: np.ndarray
     checkpoints: list[dict[str, np.ndarray]]
+    recorded: list[dict[str, np.ndarray] | None]
 
 
 def simulate_episode(sim: MPMSimulator, state0: dict[str, np.ndarray], actions: np.ndarray) -> Episode:
-    """Run ``actions`` (T, A) from ``state0`` and keep a checkpoint per step."""
+    """Run ``actions`` (T, A) from ``state0``; keep a checkpoint per step and, on a differentiable
+    simulator, the substep frames of the first steps that fit in ``sim.adjoint_memory_bytes``."""
     actions = np.asarray(actions, dtype=np.float32)
     sim.set_state(state0)
     checkpoints = [sim.get_state()]
+    recorded: list[dict[str, np.ndarray] | None] = []
+    kept_bytes, next_bytes = 0, sim.n_frames * sim.n * RECORD_CHANNELS * 4  # the particles' share, at first
     for t, action in enumerate(actions):
-        sim.step(action, step=t)
+        # A differentiable simulator steps with the recording kernel, whose float rounding the backward
+        # pass's recomputation repeats exactly (the plain kernel's may differ in the last bits).
+        if sim.differentiable and kept_bytes + next_bytes <= sim.adjoint_memory_bytes:
+            recorded.append(sim.record_step(action, step=t))
+            next_bytes = sim.recorded_bytes(recorded[-1])  # the next step's will be about the same
+            kept_bytes += next_bytes
+        else:
+            sim.run_substeps(action, step=t, record=sim.differentiable)
+            recorded.append(None)
+        sim.copy_frame(sim.substeps, 0)
         checkpoints.append(sim.get_state())
     stack = {key: np.stack([c[key] for c in checkpoints]) for key in STATE_KEYS}
     return Episode(stack["x"], stack["v"], stack["tool_pos"], stack["tool_rot"], stack["tool_gap"], actions,
-                   checkpoints)
+                   checkpoints, recorded)
 
 
 def backpropagate_episode(sim: MPMSimulator, episode: Episode,
@@ -60,15 +78,21 @@ def backpropagate_episode(sim: MPMSimulator, episode: Episode,
     action_grads = np.zeros_like(episode.actions)
     carried = {key: grads[key][T] for key in grads}
     for t in reversed(range(T)):
-        sim.set_state(episode.checkpoints[t])
-        sim.load_action(episode.actions[t])
-        for f in range(sim.substeps):
-            sim.substep_recorded(f)
+        if episode.recorded[t] is None:
+            sim.set_state(episode.checkpoints[t])
+            sim.run_substeps(episode.actions[t], step=t, record=True)
+        else:
+            sim.load_recorded_step(episode.recorded[t])
+            sim.load_action(episode.actions[t])
         sim.clear_state_grads()
         sim.clear_particle_temporaries_grad()
         sim.add_state_grad(carried, sim.substeps)
         for f in reversed(range(sim.substeps)):
             sim.substep_grad(f)
+        if episode.recorded[t] is not None:
+            # The buffers go back for the next episode; a second backward pass recomputes this step.
+            sim.release_recorded_step(episode.recorded[t])
+            episode.recorded[t] = None
         action_grads[t] = sim.read_action_grad()
         carried = sim.read_state_grad(0)
         for key in grads:

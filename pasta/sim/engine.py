@@ -36,6 +36,11 @@ from pasta.sim.tool_geometry import box_sdf_normal, capsule_sdf_normal, knife_sd
 ACTION_DIMS = {"box": 6, "knife": 3, "gripper": 7, "rolling_pin": 6}
 SINGULAR_VALUE_FLOOR = 0.05
 SVD_GAP_FLOOR = 1e-6
+# Floats per particle and frame in a recorded step (MPMSimulator.record_step): x, v, the singular
+# values, then C, F, U, V and the affine matrix row by row.
+RECORD_CHANNELS = 54
+# Floats per grid node of a recorded substep (MPMSimulator.record_step): mass, momentum, new velocity.
+GRID_CHANNELS = 7
 MAX_SPEED = 1e3
 # Soft contact acts where exp(-softness * sdf) exceeds this; the official 0.1 cut-off makes the
 # contact force jump, which finite differences see and adjoints do not.
@@ -129,6 +134,11 @@ class MPMSimulator:
         self.tool_kinds = layout.tool_kinds
         self.n_tools = len(layout.tool_kinds)
         self.differentiable = layout.differentiable
+        # Host memory a differentiable episode may keep so that its backward pass need not recompute
+        # the substeps (pasta.sim.autodiff; SimConfig.adjoint_memory_mb, set by simulator_for).
+        self.adjoint_memory_bytes = 0
+        self._spare_records: list[dict[str, np.ndarray]] = []  # buffers of released recorded steps
+        self._loaded_grids: dict[str, np.ndarray] | None = None  # the recorded step substep_grad restores
         self.boundary_cells = boundary_cells
         self.p_vol = (0.5 * self.dx) ** 2
         self.x_low = max(1, lower_bound_cells) * self.dx
@@ -299,7 +309,7 @@ class MPMSimulator:
 
     @ti.kernel
     def svd_grad(self, f: ti.i32):
-        """Adjoint of the SVD of the trial F (kept by :meth:`substep_recorded`): F_trial.grad from U.grad,
+        """Adjoint of the SVD of the trial F (kept by :meth:`run_substeps` with ``record``): F_trial.grad from U.grad,
         sig.grad and V.grad.
 
         Uses the closed form for the SVD's derivative, with the gaps between
@@ -343,17 +353,20 @@ class MPMSimulator:
 
     @ti.func
     def fresh_affine(self, f, p, record: ti.template()):
-        """Trial F, SVD and stress of particle p in one go: its affine matrix (3, 3).
+        """Trial F, SVD and stress of particle p in one go: its affine matrix (3, 3), kept in ``affine``.
 
-        With ``record``, keeps the SVD and the affine matrix in frame f for the adjoint pass.
+        The affine matrix goes to frame f when differentiable, else to the single frame 0. With
+        ``record``, the SVD is kept in frame f too, for the adjoint pass.
         """
         F_trial = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
         U, sig, V = self.decompose(F_trial)
         affine = self.stress_for(f, p, U, sig, V)
         if ti.static(record):
             self.U[f, p], self.sig[f, p], self.V[f, p] = U, sig, V
+        if ti.static(self.differentiable):
             self.affine[f, p] = affine
-        return affine
+        else:
+            self.affine[0, p] = affine
 
     @ti.func
     def stencil(self, x):
@@ -395,39 +408,30 @@ class MPMSimulator:
         return (c * self.n) // self.p2g_chunks, ((c + 1) * self.n) // self.p2g_chunks
 
     @ti.func
-    def particles_to_chunks(self, f, fused: ti.template(), record: ti.template()):
-        """P2G into the chunks' grids, and each chunk's box of stencil nodes.
+    def particles_to_chunks(self, f):
+        """P2G of frame f's particles into the chunks' grids, with the affine matrices kept by
+        :meth:`fresh_affine`, and each chunk's box of stencil nodes.
 
         Ordered (``layout.serial_p2g``): chunk c holds particles ``[c n / K, (c + 1) n / K)`` of the
         K = ``P2G_CHUNKS`` chunks and scatters them serially into its own grid, the chunks in parallel:
         bit-reproducible and free of float atomics. Otherwise one grid and atomic adds in a parallel
-        loop over the particles (a GPU's only fast way). The affine matrices come from
-        :meth:`fresh_affine` (which keeps them with ``record``) when ``fused``, else from ``self.affine[f]``.
+        loop over the particles (a GPU's only fast way).
         """
+        kept = f if ti.static(self.differentiable) else 0
         if ti.static(self.serial_p2g):
             for c in range(self.p2g_chunks):
                 lo = ti.Vector([self.n_grid] * 3)
                 hi = ti.Vector([-1] * 3)
                 begin, end = self.chunk_bounds(c)
                 for p in range(begin, end):
-                    affine = ti.Matrix.zero(ti.f32, 3, 3)
-                    if ti.static(fused):
-                        affine = self.fresh_affine(f, p, record)
-                    else:
-                        affine = self.affine[f, p]
-                    base = self.scatter(c, f, p, affine)
+                    base = self.scatter(c, f, p, self.affine[kept, p])
                     lo = ti.min(lo, base)
                     hi = ti.max(hi, base + 2)
                 self.chunk_lo[c] = lo
                 self.chunk_hi[c] = hi
         else:
             for p in range(self.n):
-                affine = ti.Matrix.zero(ti.f32, 3, 3)
-                if ti.static(fused):
-                    affine = self.fresh_affine(f, p, record)
-                else:
-                    affine = self.affine[f, p]
-                self.scatter(0, f, p, affine)
+                self.scatter(0, f, p, self.affine[kept, p])
 
     @ti.func
     def find_active_box(self):
@@ -462,7 +466,7 @@ class MPMSimulator:
         differentiable, zero adjoints of the three grid fields. The grid kernels of the adjoint pass
         visit only that box.
         """
-        self.particles_to_chunks(f, False, False)
+        self.particles_to_chunks(f)
         for _ in range(1):
             self.find_active_box()
         lo, hi = ti.static(self.active_lo, self.active_hi)
@@ -478,30 +482,43 @@ class MPMSimulator:
 
     @ti.kernel
     def p2g_adjoint(self, f: ti.i32):
-        """Hand-written adjoint of ``p2g``: grid adjoints to x[f], v[f] and the affine matrix."""
+        """Hand-written adjoint of ``p2g``: grid adjoints to x[f], v[f] and the affine matrix.
+
+        A node's offset from the particle is ``(o - fx) dx`` for the node's integer offset ``o``, so the
+        affine matrix's part of its momentum is built from the matrix's columns, and the sums over the
+        27 nodes that a product with the affine matrix or ``fx`` would repeat are taken once (``g_momentum``
+        and ``offset_sums``).
+        """
         for p in range(self.n):
             base, fx, w = self.stencil(self.x[f, p])
             slope = bspline_slopes(fx)
             p_mass = self.particle_mass()
-            momentum = p_mass * self.v[f, p]
             affine = self.affine[f, p]
+            columns = [affine[:, d] * self.dx for d in ti.static(range(3))]
+            # momentum + affine @ ((o - fx) dx), accumulated one axis at a time over the offsets o.
+            start = p_mass * self.v[f, p] - affine @ (fx * self.dx)
             g_momentum = ti.Vector.zero(ti.f32, 3)
-            g_affine = ti.Matrix.zero(ti.f32, 3, 3)
+            offset_sums = [ti.Vector.zero(ti.f32, 3) for _ in ti.static(range(3))]  # sum of o_d w g_v
             g_x = ti.Vector.zero(ti.f32, 3)
-            for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-                offset = ti.Vector([i, j, k])
-                node = base + offset
-                dpos = (ti.cast(offset, ti.f32) - fx) * self.dx
-                weight, d_weight = node_weight_and_gradient(w, slope, i, j, k, self.inv_dx)
-                g_v = self.grid_v_in.grad[node]
-                g_m = self.grid_m.grad[node]
-                contribution = momentum + affine @ dpos
-                g_momentum += weight * g_v
-                g_affine += weight * g_v.outer_product(dpos)
-                g_x += (g_v.dot(contribution) + g_m * p_mass) * d_weight - weight * (affine.transpose() @ g_v)
+            for i in ti.static(range(3)):
+                along_i = start + ti.static(float(i)) * columns[0]
+                for j in ti.static(range(3)):
+                    along_ij = along_i + ti.static(float(j)) * columns[1]
+                    for k in ti.static(range(3)):
+                        contribution = along_ij + ti.static(float(k)) * columns[2]
+                        node = base + ti.Vector([i, j, k])
+                        weight, d_weight = node_weight_and_gradient(w, slope, i, j, k, self.inv_dx)
+                        g_v = self.grid_v_in.grad[node]
+                        weighted = weight * g_v
+                        g_momentum += weighted
+                        for d, o in ti.static(enumerate((i, j, k))):
+                            if ti.static(o > 0):
+                                offset_sums[d] += ti.static(float(o)) * weighted
+                        g_x += (g_v.dot(contribution) + self.grid_m.grad[node] * p_mass) * d_weight
+            g_affine = ti.Matrix.cols([(offset_sums[d] - fx[d] * g_momentum) * self.dx for d in ti.static(range(3))])
             self.v.grad[f, p] += p_mass * g_momentum
             self.affine.grad[f, p] += g_affine
-            self.x.grad[f, p] += g_x
+            self.x.grad[f, p] += g_x - affine.transpose() @ g_momentum
 
     @ti.kernel
     def tool_kinematics(self, f: ti.i32):
@@ -700,9 +717,12 @@ class MPMSimulator:
 
         Only the box of the particles' stencil nodes is visited; ``grid_v_out`` elsewhere is left as it
         was (G2P reads none of it). With ``record``, the SVD and the affine matrices of frame f are kept for
-        :meth:`substep_grad`.
+        :meth:`substep_grad`, and the box's mass and momentum in ``grid_m`` and ``grid_v_in`` for
+        :meth:`save_grid`.
         """
-        self.particles_to_chunks(f, True, record)
+        for p in range(self.n):
+            self.fresh_affine(f, p, record)
+        self.particles_to_chunks(f)
         for _ in range(1):
             self.move_tools(f)
             self.find_active_box()
@@ -713,12 +733,20 @@ class MPMSimulator:
             if node[3] > 1e-12:
                 v = self.node_velocity(f, cell, node[3], ti.Vector([node[0], node[1], node[2]]))
             self.grid_v_out[cell] = v
+            if ti.static(record):
+                self.grid_m[cell] = node[3]
+                self.grid_v_in[cell] = ti.Vector([node[0], node[1], node[2]])
         for p in range(self.n):
             self.grid_to_particle(f, p)
 
     @ti.func
     def particle_g2p_adjoint(self, c, f, p):
-        """Adjoint of G2P for particle p: its share of grid_v_out's adjoint into chunk c's grid, and x[f]'s."""
+        """Adjoint of G2P for particle p: its share of grid_v_out's adjoint into chunk c's grid, and x[f]'s.
+
+        ``g_C @ (o - fx)`` is built from ``g_C``'s columns over the integer offsets o, and the term that
+        G2P's ``(o - fx)`` adds to x's adjoint is summed over the nodes once: the weighted sum of the
+        grid velocities is the new velocity ``v[f + 1]``.
+        """
         base, fx, w = self.stencil(self.x[f, p])
         slope = bspline_slopes(fx)
         new_v = self.v[f + 1, p]
@@ -726,19 +754,23 @@ class MPMSimulator:
         free = ti.Vector([ti.select(self.x_low < moved[d] < self.x_high, 1.0, 0.0) for d in ti.static(range(3))])
         g_x_next = self.x.grad[f + 1, p] * free
         g_v = self.v.grad[f + 1, p] + self.dt * g_x_next
-        g_C = self.C.grad[f + 1, p]
-        g_x = g_x_next
         scale = 4.0 * self.inv_dx
-        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-            offset = ti.Vector([i, j, k])
-            node = base + offset
-            dpos = ti.cast(offset, ti.f32) - fx
-            weight, d_weight = node_weight_and_gradient(w, slope, i, j, k, self.inv_dx)
-            grid_v = self.grid_v_out[node]
-            g_node = weight * g_v + (scale * weight) * (g_C @ dpos)
-            self.add_to_chunk(c, node, ti.Vector([g_node[0], g_node[1], g_node[2], 0.0]))
-            g_x += (g_v.dot(grid_v) + scale * grid_v.dot(g_C @ dpos)) * d_weight
-            g_x -= (scale * self.inv_dx * weight) * (g_C.transpose() @ grid_v)
+        g_C = scale * self.C.grad[f + 1, p]
+        columns = [g_C[:, d] for d in ti.static(range(3))]
+        # The adjoint a node's velocity gets per unit weight: g_v + scale g_C (o - fx).
+        start = g_v - g_C @ fx
+        g_x = g_x_next - self.inv_dx * (g_C.transpose() @ new_v)
+        for i in ti.static(range(3)):
+            along_i = start + ti.static(float(i)) * columns[0]
+            for j in ti.static(range(3)):
+                along_ij = along_i + ti.static(float(j)) * columns[1]
+                for k in ti.static(range(3)):
+                    per_weight = along_ij + ti.static(float(k)) * columns[2]
+                    node = base + ti.Vector([i, j, k])
+                    weight, d_weight = node_weight_and_gradient(w, slope, i, j, k, self.inv_dx)
+                    g_node = weight * per_weight
+                    self.add_to_chunk(c, node, ti.Vector([g_node[0], g_node[1], g_node[2], 0.0]))
+                    g_x += self.grid_v_out[node].dot(per_weight) * d_weight
         self.x.grad[f, p] += g_x
 
     @ti.kernel
@@ -973,19 +1005,19 @@ class MPMSimulator:
         """One MPM substep from frame f to f + 1 (one kernel: :meth:`advance`)."""
         self.advance(f, False)
 
-    def substep_recorded(self, f: int) -> None:
-        """The same substep, keeping the SVD and the affine matrices of frame f for the adjoint pass."""
-        self.advance(f, True)
-
     def substep_grad(self, f: int) -> None:
-        """Adjoint of substep f, after :meth:`substep_recorded` filled the frames.
+        """Adjoint of substep f, after :meth:`run_substeps` with ``record`` (or
+        :meth:`load_recorded_step`) filled the frames.
 
-        Recomputes the grid of substep f (P2G and the grid update), then runs the adjoints in
-        reverse order. The adjoints of U, sig, V and the affine matrix must be zero on entry
-        (:meth:`clear_particle_temporaries_grad`).
+        Restores the grid of substep f from the loaded recorded step, or recomputes it (P2G and the
+        grid update), then runs the adjoints in reverse order. The adjoints of U, sig, V and the affine
+        matrix must be zero on entry (:meth:`clear_particle_temporaries_grad`).
         """
-        self.p2g(f)
-        self.grid_op(f)
+        if self._loaded_grids is None:
+            self.p2g(f)
+            self.grid_op(f)
+        else:
+            self._load_grid(f, self._loaded_grids["grid"], self._loaded_grids["grid_boxes"])
         self.g2p_adjoint(f)
         self.grid_op.grad(f)
         self.tool_kinematics.grad(f)
@@ -994,12 +1026,136 @@ class MPMSimulator:
         self.svd_grad(f)
         self.compute_trial_F.grad(f)
 
-    def run_substeps(self, action: np.ndarray, step: int | None = None) -> None:
-        """Run one environment step into frames 1..substeps without wrapping back to frame 0."""
+    def run_substeps(self, action: np.ndarray, step: int | None = None, record: bool = False) -> None:
+        """Run one environment step into frames 1..substeps without wrapping back to frame 0.
+
+        With ``record`` (a differentiable simulator), every substep keeps its SVD and affine matrix, so
+        that the step's adjoint can follow (:meth:`substep_grad`).
+        """
         self.load_action(self.check_action(action, step))
         for f in range(self.substeps):
-            self.substep(f)
+            self.advance(f, record)
         self.raise_if_unhealthy(self.substeps, step)
+
+    def record_step(self, action: np.ndarray, step: int | None = None) -> dict[str, np.ndarray]:
+        """Run one environment step with ``record`` and return copies of all that its adjoint needs, for
+        :meth:`load_recorded_step`: particles (frames, N, RECORD_CHANNELS), each substep's grid on its
+        box (``grid``: (substeps, n_grid^3 * 7) of which the box's nodes fill the start, ``grid_boxes``:
+        (substeps, 2, 3) lowest and highest node), tool poses (frames, K, 3 / 4) and gaps (frames, K).
+
+        The arrays come from the buffers given back by :meth:`release_recorded_step` when there are any
+        (a fresh one costs a page fault per 4 KiB on first write; the grid's untouched pages cost nothing).
+        """
+        if self._spare_records:
+            recorded = self._spare_records.pop()
+        else:
+            recorded = {"particles": np.empty((self.n_frames, self.n, RECORD_CHANNELS), np.float32),
+                        "grid": np.empty((self.substeps, self.n_grid**3 * GRID_CHANNELS), np.float32),
+                        "grid_boxes": np.empty((self.substeps, 2, 3), np.int32)}
+        self.load_action(self.check_action(action, step))
+        for f in range(self.substeps):
+            self.advance(f, True)
+            self._save_grid(f, recorded["grid"], recorded["grid_boxes"])
+        self.raise_if_unhealthy(self.substeps, step)
+        self._save_frames(recorded["particles"])
+        recorded.update(tool_pos=self.tool_pos.to_numpy(), tool_rot=self.tool_rot.to_numpy(),
+                        tool_gap=self.tool_gap.to_numpy())
+        return recorded
+
+    def recorded_bytes(self, recorded: dict[str, np.ndarray]) -> int:
+        """Memory in use by a :meth:`record_step`: the particles and the grid boxes' nodes."""
+        sizes = recorded["grid_boxes"][:, 1] - recorded["grid_boxes"][:, 0] + 1
+        return recorded["particles"].nbytes + 4 * GRID_CHANNELS * int(np.prod(sizes, axis=1).sum())
+
+    def release_recorded_step(self, recorded: dict[str, np.ndarray]) -> None:
+        """Give a recorded step's buffers back for reuse; ``recorded`` must not be used afterwards."""
+        if self._loaded_grids is recorded:
+            self._loaded_grids = None
+        self._spare_records.append(recorded)
+
+    def load_recorded_step(self, recorded: dict[str, np.ndarray]) -> None:
+        """Restore the frames of :meth:`record_step`, as if the step had just been run with ``record``; its
+        substeps' grids are restored by :meth:`substep_grad` until :meth:`release_recorded_step`."""
+        self._load_frames(recorded["particles"])
+        self.tool_pos.from_numpy(recorded["tool_pos"])
+        self.tool_rot.from_numpy(recorded["tool_rot"])
+        self.tool_gap.from_numpy(recorded["tool_gap"])
+        self._loaded_grids = recorded
+
+    @ti.kernel
+    def _save_grid(self, f: ti.i32, out: ti.types.ndarray(), boxes: ti.types.ndarray()):
+        """Substep f's box (``active_lo``, ``active_hi``) into ``boxes[f]`` and its nodes' mass, momentum
+        and new velocity into ``out[f]``, GRID_CHANNELS per node, the box's nodes in C order."""
+        for d in range(3):
+            boxes[f, 0, d] = self.active_lo[None][d]
+            boxes[f, 1, d] = self.active_hi[None][d]
+        lo, hi = ti.static(self.active_lo, self.active_hi)
+        for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
+            start = GRID_CHANNELS * self.box_index(cell)
+            out[f, start] = self.grid_m[cell]
+            for a in ti.static(range(3)):
+                out[f, start + 1 + a] = self.grid_v_in[cell][a]
+                out[f, start + 4 + a] = self.grid_v_out[cell][a]
+
+    @ti.kernel
+    def _load_grid(self, f: ti.i32, data: ti.types.ndarray(), boxes: ti.types.ndarray()):
+        """The inverse of :meth:`_save_grid`, and zero adjoints of the three grid fields on the box: what
+        :meth:`p2g` and :meth:`grid_op` leave for the adjoint pass."""
+        for _ in range(1):
+            for d in ti.static(range(3)):
+                self.active_lo[None][d] = boxes[f, 0, d]
+                self.active_hi[None][d] = boxes[f, 1, d]
+        lo, hi = ti.static(self.active_lo, self.active_hi)
+        for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
+            start = GRID_CHANNELS * self.box_index(cell)
+            self.grid_m[cell] = data[f, start]
+            self.grid_v_in[cell] = ti.Vector([data[f, start + 1 + a] for a in ti.static(range(3))])
+            self.grid_v_out[cell] = ti.Vector([data[f, start + 4 + a] for a in ti.static(range(3))])
+            self.grid_m.grad[cell] = 0.0
+            self.grid_v_in.grad[cell] = ti.Vector.zero(ti.f32, 3)
+            self.grid_v_out.grad[cell] = ti.Vector.zero(ti.f32, 3)
+
+    @ti.func
+    def box_index(self, cell):
+        """The position of ``cell`` (3,) among the active box's nodes, in C order."""
+        rel = cell - self.active_lo[None]
+        size = self.active_hi[None] - self.active_lo[None] + 1
+        return (rel[0] * size[1] + rel[1]) * size[2] + rel[2]
+
+    @ti.kernel
+    def _save_frames(self, out: ti.types.ndarray()):
+        for f, p in ti.ndrange(self.n_frames, self.n):
+            x, v, C, F = self.x[f, p], self.v[f, p], self.C[f, p], self.F[f, p]
+            U, sig, V, affine = self.U[f, p], self.sig[f, p], self.V[f, p], self.affine[f, p]
+            for a in ti.static(range(3)):
+                out[f, p, a] = x[a]
+                out[f, p, 3 + a] = v[a]
+                out[f, p, 6 + a] = sig[a, a]
+                for b in ti.static(range(3)):
+                    out[f, p, 9 + 3 * a + b] = C[a, b]
+                    out[f, p, 18 + 3 * a + b] = F[a, b]
+                    out[f, p, 27 + 3 * a + b] = U[a, b]
+                    out[f, p, 36 + 3 * a + b] = V[a, b]
+                    out[f, p, 45 + 3 * a + b] = affine[a, b]
+
+    @ti.kernel
+    def _load_frames(self, data: ti.types.ndarray()):
+        for f, p in ti.ndrange(self.n_frames, self.n):
+            x, v = ti.Vector.zero(ti.f32, 3), ti.Vector.zero(ti.f32, 3)
+            C, F, U = ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3)
+            sig, V, affine = ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3)
+            for a in ti.static(range(3)):
+                x[a] = data[f, p, a]
+                v[a] = data[f, p, 3 + a]
+                sig[a, a] = data[f, p, 6 + a]
+                for b in ti.static(range(3)):
+                    C[a, b] = data[f, p, 9 + 3 * a + b]
+                    F[a, b] = data[f, p, 18 + 3 * a + b]
+                    U[a, b] = data[f, p, 27 + 3 * a + b]
+                    V[a, b] = data[f, p, 36 + 3 * a + b]
+                    affine[a, b] = data[f, p, 45 + 3 * a + b]
+            self.x[f, p], self.v[f, p], self.C[f, p], self.F[f, p] = x, v, C, F
+            self.U[f, p], self.sig[f, p], self.V[f, p], self.affine[f, p] = U, sig, V, affine
 
     def step(self, action: np.ndarray, step: int | None = None) -> None:
         """Advance one environment step under ``action`` (A,) in [-1, 1]."""
@@ -1062,6 +1218,7 @@ def simulator_for(sim: SimConfig, tools: Sequence[ToolConfig], n_particles: int 
     if key not in _SIMULATORS:
         _SIMULATORS[key] = MPMSimulator(layout, sim.particle_lower_bound_cells, sim.boundary_cells, arch)
     simulator = _SIMULATORS[key]
+    simulator.adjoint_memory_bytes = int(sim.adjoint_memory_mb * 2**20)
     simulator.set_gravity(sim.gravity_m_s2)
     simulator.set_softness(sim.contact_softness)
     simulator.set_expel_rates(expel_rates(sim, tools))
