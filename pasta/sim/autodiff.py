@@ -84,9 +84,8 @@ def backpropagate_episode(sim: MPMSimulator, episode: Episode,
         else:
             sim.load_recorded_step(episode.recorded[t])
             sim.load_action(episode.actions[t])
-        sim.clear_state_grads()
-        sim.clear_particle_temporaries_grad()
-        sim.add_state_grad(carried, sim.substeps)
+        sim.clear_tool_grads()
+        sim.seed_state_grad(carried, sim.substeps)
         for f in reversed(range(sim.substeps)):
             sim.substep_grad(f)
         if episode.recorded[t] is not None:

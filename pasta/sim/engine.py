@@ -61,6 +61,22 @@ SVD_METHODS = {"taichi": taichi_svd, "fast": fast_svd}
 
 
 @ti.func
+def svd_adjoint_in_frame(sig, u_skew, v_skew, g_sig):
+    """The adjoint of ``F = U sig V^T`` in the singular frames, ``U^T g_F V`` (3, 3), given
+    ``u_skew = U^T g_U - g_U^T U``, ``v_skew = V^T g_V - g_V^T V`` (3, 3) and the singular values' adjoint
+    (3,): the closed form of the SVD's derivative, with the gaps between squared singular values kept
+    at least ``SVD_GAP_FLOOR`` away from zero. Serves every method of ``SVD_METHODS``.
+    """
+    X = ti.Matrix([[g_sig[0], 0.0, 0.0], [0.0, g_sig[1], 0.0], [0.0, 0.0, g_sig[2]]])
+    for i, j in ti.static(ti.ndrange(3, 3)):
+        if ti.static(i != j):
+            gap = sig[j, j] ** 2 - sig[i, i] ** 2
+            gap = ti.select(gap >= 0.0, ti.max(gap, SVD_GAP_FLOOR), ti.min(gap, -SVD_GAP_FLOOR))
+            X[i, j] = (u_skew[i, j] * sig[j, j] + sig[i, i] * v_skew[i, j]) / gap
+    return X
+
+
+@ti.func
 def bspline_weights(fx):
     """Quadratic B-spline weights (3, 3) of a particle at fx (3,) in [0.5, 1.5) cells from its lowest
     stencil node: entry [i, d] for offset i along axis d."""
@@ -160,14 +176,13 @@ class MPMSimulator:
         self.v = ti.Vector.field(3, ti.f32, shape=(frames, n), needs_grad=grad)
         self.C = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
         self.F = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
-        self.F_trial = ti.Matrix.field(3, 3, ti.f32, shape=n, needs_grad=grad)
-        # Per-substep SVD of the trial F and APIC affine matrix, kept so the adjoint pass
-        # recomputes only the grid (P2G and the grid update), not the SVD.
+        # Per-substep SVD of the trial F and APIC affine matrix (one frame when not differentiable), kept
+        # for the adjoint pass (MPMSimulator.p2g_adjoint), which therefore never recomputes an SVD.
         svd_frames = frames if grad else 1
-        self.U = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
-        self.sig = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
-        self.V = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
-        self.affine = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n), needs_grad=grad)
+        self.U = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n))
+        self.sig = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n))
+        self.V = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n))
+        self.affine = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n))
         self.grid_m = ti.field(ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_in = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_out = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
@@ -265,74 +280,86 @@ class MPMSimulator:
 
     # ------------------------------------------------------------- constitutive
     @ti.func
-    def constitutive(self, U, sig, V):
-        """Return mapping and Kirchhoff stress from the SVD of the trial F.
+    def plastic_singular_values(self, sig):
+        """The return mapping on the singular values of the trial F: those of the post-plastic F (3,).
 
-        Returns the post-plastic F (3, 3) and the Kirchhoff stress (3, 3).
+        The floored values' logarithms (Hencky strain) keep their mean and have their deviatoric part
+        scaled down to the yield surface where it lies beyond it.
         """
-        mu = self.mu[None]
-        lam = self.lam[None]
-        s = ti.Vector([sig[0, 0], sig[1, 1], sig[2, 2]])
-        s = ti.max(s, SINGULAR_VALUE_FLOOR)
+        s = ti.max(ti.Vector([sig[0, 0], sig[1, 1], sig[2, 2]]), SINGULAR_VALUE_FLOOR)
         eps = ti.log(s)
         eps_dev = eps - eps.sum() / 3.0
         dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + 1e-8)
-        excess = ti.max(dev_norm - self.yield_stress[None] / (2.0 * mu), 0.0)
-        eps = eps - (excess / dev_norm) * eps_dev
-        s_new = ti.exp(eps)
-        sig_new = ti.Matrix([[s_new[0], 0.0, 0.0], [0.0, s_new[1], 0.0], [0.0, 0.0, s_new[2]]])
-        F_new = U @ sig_new @ V.transpose()
-        R = U @ V.transpose()
+        excess = ti.max(dev_norm - self.yield_stress[None] / (2.0 * self.mu[None]), 0.0)
+        return ti.exp(eps - (excess / dev_norm) * eps_dev)
+
+    @ti.func
+    def principal_stress(self, s_new):
+        """The Kirchhoff stress's eigenvalues (3,) for the post-plastic singular values ``s_new`` (3,):
+        ``2 mu (s^2 - s) + lam J (J - 1)``, the fixed-corotated model."""
         J = s_new[0] * s_new[1] * s_new[2]
-        stress = 2.0 * mu * (F_new - R) @ F_new.transpose() + ti.Matrix.identity(ti.f32, 3) * (
-            lam * J * (J - 1.0)
-        )
+        return 2.0 * self.mu[None] * (s_new * s_new - s_new) + self.lam[None] * J * (J - 1.0)
+
+    @ti.func
+    def constitutive(self, U, sig, V):
+        """Return mapping and Kirchhoff stress from the SVD of the trial F.
+
+        Returns the post-plastic F ``U diag(s) V^T`` (3, 3) and the Kirchhoff stress (3, 3), which with
+        ``R = U V^T`` is ``2 mu (F - R) F^T + lam J (J - 1) I = U diag(principal_stress(s)) U^T``.
+        """
+        s_new = self.plastic_singular_values(sig)
+        d = self.principal_stress(s_new)
+        F_new = ti.Matrix.cols([U[:, i] * s_new[i] for i in ti.static(range(3))]) @ V.transpose()
+        stress = ti.Matrix.cols([U[:, i] * d[i] for i in ti.static(range(3))]) @ U.transpose()
         return F_new, stress
 
-    # ------------------------------------------------------------------ kernels
-    @ti.kernel
-    def clear_particle_temporaries_grad(self):
-        for p in range(self.n):
-            self.F_trial.grad[p] = ti.Matrix.zero(ti.f32, 3, 3)
-        for f, p in self.U:
-            self.U.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
-            self.sig.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
-            self.V.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
-            self.affine.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
+    @ti.func
+    def constitutive_adjoint(self, f, p, g_affine):
+        """Hand-written adjoint of particle p's trial F, SVD and stress, given the adjoint of its affine
+        matrix (3, 3) and of ``F[f + 1]``: sets the adjoints of ``C[f]`` and ``F[f]``.
 
-    # compute_trial_F, compute_stress and tool_kinematics run only through their Taichi adjoints (.grad):
-    # the substep itself computes the same inside advance.
-    @ti.kernel
-    def compute_trial_F(self, f: ti.i32):
-        for p in range(self.n):
-            self.F_trial[p] = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
-
-    @ti.kernel
-    def svd_grad(self, f: ti.i32):
-        """Adjoint of the SVD of the trial F (kept by :meth:`run_substeps` with ``record``): F_trial.grad from U.grad,
-        sig.grad and V.grad.
-
-        Uses the closed form for the SVD's derivative, with the gaps between
-        squared singular values kept at least ``SVD_GAP_FLOOR`` away from zero.
+        Reads the SVD of substep f kept by :meth:`fresh_affine` and works in its singular frames, where
+        the stress ``U diag(d) U^T`` and the new F ``U diag(s_new) V^T`` are diagonal.
         """
-        for p in range(self.n):
-            U, S, V = self.U[f, p], self.sig[f, p], self.V[f, p]
-            gU, gS, gV = self.U.grad[f, p], self.sig.grad[f, p], self.V.grad[f, p]
-            sq = ti.Vector([S[0, 0] ** 2, S[1, 1] ** 2, S[2, 2] ** 2])
-            K = ti.Matrix.zero(ti.f32, 3, 3)
-            for i, j in ti.static(ti.ndrange(3, 3)):
-                if ti.static(i != j):
-                    gap = sq[j] - sq[i]
-                    gap = ti.select(gap >= 0.0, ti.max(gap, SVD_GAP_FLOOR), ti.min(gap, -SVD_GAP_FLOOR))
-                    K[i, j] = 1.0 / gap
-            gS_diag = ti.Matrix([[gS[0, 0], 0.0, 0.0], [0.0, gS[1, 1], 0.0], [0.0, 0.0, gS[2, 2]]])
-            Ut, Vt = U.transpose(), V.transpose()
-            u_skew = Ut @ gU - gU.transpose() @ U
-            v_skew = Vt @ gV - gV.transpose() @ V
-            u_part = U @ ((K * u_skew) @ S) @ Vt
-            v_part = U @ (S @ (K * v_skew)) @ Vt
-            self.F_trial.grad[p] = U @ gS_diag @ Vt + u_part + v_part
+        U, sig, V = self.U[f, p], self.sig[f, p], self.V[f, p]
+        mu, lam = self.mu[None], self.lam[None]
+        # The forward return mapping (plastic_singular_values, principal_stress), with its intermediates.
+        s = ti.max(ti.Vector([sig[0, 0], sig[1, 1], sig[2, 2]]), SINGULAR_VALUE_FLOOR)
+        eps = ti.log(s)
+        eps_dev = eps - eps.sum() / 3.0
+        dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + 1e-8)
+        yield_strain = self.yield_stress[None] / (2.0 * mu)
+        s_new = ti.exp(eps - (ti.max(dev_norm - yield_strain, 0.0) / dev_norm) * eps_dev)
+        J = s_new[0] * s_new[1] * s_new[2]
+        d = 2.0 * mu * (s_new * s_new - s_new) + lam * J * (J - 1.0)
 
+        g_stress = (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * g_affine
+        Ut = U.transpose()
+        Q = Ut @ (g_stress + g_stress.transpose()) @ U  # U^T (g + g^T) U, symmetric
+        M = Ut @ self.F.grad[f + 1, p] @ V  # the new F's adjoint in the singular frames
+        g_d = 0.5 * ti.Vector([Q[0, 0], Q[1, 1], Q[2, 2]])
+        g_J = lam * (2.0 * J - 1.0) * g_d.sum()
+        g_s_new = ti.Vector([M[0, 0], M[1, 1], M[2, 2]]) + 2.0 * mu * (2.0 * s_new - 1.0) * g_d + g_J * J / s_new
+        # s_new = exp(eps'), eps' = eps - max(|dev| - yield, 0) / |dev| * dev (dev: deviatoric part of eps).
+        g_eps_new = g_s_new * s_new
+        g_eps = g_eps_new
+        if dev_norm > yield_strain:
+            # eps' = mean(eps) + yield * dev / |dev|: the mean passes through, the rest is projected.
+            h = yield_strain * (g_eps_new / dev_norm - eps_dev * (eps_dev.dot(g_eps_new) / dev_norm**3))
+            g_eps = g_eps_new.sum() / 3.0 + h - h.sum() / 3.0
+        g_sig = ti.Vector([ti.select(sig[i, i] > SINGULAR_VALUE_FLOOR, g_eps[i] / s[i], 0.0)
+                           for i in ti.static(range(3))])
+        # U^T g_U = Q diag(d) + M diag(s_new) and V^T g_V = M^T diag(s_new).
+        A = ti.Matrix([[Q[i, j] * d[j] + M[i, j] * s_new[j] for j in ti.static(range(3))]
+                       for i in ti.static(range(3))])
+        B = ti.Matrix([[M[j, i] * s_new[j] for j in ti.static(range(3))] for i in ti.static(range(3))])
+        g_F_trial = U @ svd_adjoint_in_frame(sig, A - A.transpose(), B - B.transpose(), g_sig) @ V.transpose()
+        # F_trial = (I + dt C) F; the affine matrix holds m C too.
+        C, F = self.C[f, p], self.F[f, p]
+        self.C.grad[f, p] = self.dt * g_F_trial @ F.transpose() + self.particle_mass() * g_affine
+        self.F.grad[f, p] = (ti.Matrix.identity(ti.f32, 3) + self.dt * C).transpose() @ g_F_trial
+
+    # ------------------------------------------------------------------ kernels
     @ti.func
     def particle_mass(self):
         return self.p_vol * self.density[None]
@@ -345,11 +372,6 @@ class MPMSimulator:
         return (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + (
             self.particle_mass() * self.C[f, p]
         )
-
-    @ti.kernel
-    def compute_stress(self, f: ti.i32):
-        for p in range(self.n):
-            self.affine[f, p] = self.stress_for(f, p, self.U[f, p], self.sig[f, p], self.V[f, p])
 
     @ti.func
     def fresh_affine(self, f, p, record: ti.template()):
@@ -467,8 +489,7 @@ class MPMSimulator:
         visit only that box.
         """
         self.particles_to_chunks(f)
-        for _ in range(1):
-            self.find_active_box()
+        self.find_active_box()  # serial, on the launching thread
         lo, hi = ti.static(self.active_lo, self.active_hi)
         for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
             node = self.gather_chunks(cell)
@@ -482,7 +503,9 @@ class MPMSimulator:
 
     @ti.kernel
     def p2g_adjoint(self, f: ti.i32):
-        """Hand-written adjoint of ``p2g``: grid adjoints to x[f], v[f] and the affine matrix.
+        """Hand-written adjoint of ``p2g`` and, per particle, of the stress before it: grid adjoints to x[f],
+        v[f] and the affine matrix, and from it (:meth:`constitutive_adjoint`) to C[f] and F[f]. Sets the
+        adjoints of v, C and F at frame f and adds to x's, which :meth:`g2p_adjoint` set.
 
         A node's offset from the particle is ``(o - fx) dx`` for the node's integer offset ``o``, so the
         affine matrix's part of its momentum is built from the matrix's columns, and the sums over the
@@ -516,13 +539,14 @@ class MPMSimulator:
                                 offset_sums[d] += ti.static(float(o)) * weighted
                         g_x += (g_v.dot(contribution) + self.grid_m.grad[node] * p_mass) * d_weight
             g_affine = ti.Matrix.cols([(offset_sums[d] - fx[d] * g_momentum) * self.dx for d in ti.static(range(3))])
-            self.v.grad[f, p] += p_mass * g_momentum
-            self.affine.grad[f, p] += g_affine
+            self.v.grad[f, p] = p_mass * g_momentum
             self.x.grad[f, p] += g_x - affine.transpose() @ g_momentum
+            self.constitutive_adjoint(f, p, g_affine)
 
     @ti.kernel
     def tool_kinematics(self, f: ti.i32):
         """Advance every tool's pose from frame f to f + 1 under the current action."""
+        ti.loop_config(serialize=True)
         for _ in range(1):
             self.move_tools(f)
 
@@ -723,9 +747,9 @@ class MPMSimulator:
         for p in range(self.n):
             self.fresh_affine(f, p, record)
         self.particles_to_chunks(f)
-        for _ in range(1):
-            self.move_tools(f)
-            self.find_active_box()
+        # Serial, on the launching thread: a parallel task costs a thread pool wake-up (40-90 us here).
+        self.move_tools(f)
+        self.find_active_box()
         lo, hi = ti.static(self.active_lo, self.active_hi)
         for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
             node = self.gather_chunks(cell)
@@ -741,7 +765,7 @@ class MPMSimulator:
 
     @ti.func
     def particle_g2p_adjoint(self, c, f, p):
-        """Adjoint of G2P for particle p: its share of grid_v_out's adjoint into chunk c's grid, and x[f]'s.
+        """Adjoint of G2P for particle p: its share of grid_v_out's adjoint into chunk c's grid; sets x[f]'s.
 
         ``g_C @ (o - fx)`` is built from ``g_C``'s columns over the integer offsets o, and the term that
         G2P's ``(o - fx)`` adds to x's adjoint is summed over the nodes once: the weighted sum of the
@@ -771,7 +795,7 @@ class MPMSimulator:
                     g_node = weight * per_weight
                     self.add_to_chunk(c, node, ti.Vector([g_node[0], g_node[1], g_node[2], 0.0]))
                     g_x += self.grid_v_out[node].dot(per_weight) * d_weight
-        self.x.grad[f, p] += g_x
+        self.x.grad[f, p] = g_x
 
     @ti.kernel
     def g2p_adjoint(self, f: ti.i32):
@@ -857,29 +881,28 @@ class MPMSimulator:
             gap[k] = self.tool_gap[f, k]
 
     @ti.kernel
-    def clear_state_grads(self):
-        for f, p in self.x:
-            self.x.grad[f, p] = ti.Vector.zero(ti.f32, 3)
-            self.v.grad[f, p] = ti.Vector.zero(ti.f32, 3)
-            self.C.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
-            self.F.grad[f, p] = ti.Matrix.zero(ti.f32, 3, 3)
+    def clear_tool_grads(self):
+        """Zero the adjoints of the tools and the action, which the grid update's adjoint accumulates. The
+        particles' need no clearing: each substep's adjoint sets those of its first frame."""
+        ti.loop_config(serialize=True)
         for f, k in self.tool_pos:
             self.tool_pos.grad[f, k] = ti.Vector.zero(ti.f32, 3)
             self.tool_rot.grad[f, k] = ti.Vector.zero(ti.f32, 4)
             self.tool_gap.grad[f, k] = 0.0
+        ti.loop_config(serialize=True)
         for i in self.action:
             self.action.grad[i] = 0.0
 
     @ti.kernel
-    def _add_frame_grad(self, f: ti.i32, x: ti.types.ndarray(), v: ti.types.ndarray(), C: ti.types.ndarray(),
+    def _set_frame_grad(self, f: ti.i32, x: ti.types.ndarray(), v: ti.types.ndarray(), C: ti.types.ndarray(),
                         F: ti.types.ndarray()):
         for p in range(self.n):
             for a in ti.static(range(3)):
-                self.x.grad[f, p][a] += x[p, a]
-                self.v.grad[f, p][a] += v[p, a]
+                self.x.grad[f, p][a] = x[p, a]
+                self.v.grad[f, p][a] = v[p, a]
                 for b in ti.static(range(3)):
-                    self.C.grad[f, p][a, b] += C[p, a, b]
-                    self.F.grad[f, p][a, b] += F[p, a, b]
+                    self.C.grad[f, p][a, b] = C[p, a, b]
+                    self.F.grad[f, p][a, b] = F[p, a, b]
 
     @ti.kernel
     def _read_frame_grad(self, f: ti.i32, x: ti.types.ndarray(), v: ti.types.ndarray(), C: ti.types.ndarray(),
@@ -912,15 +935,16 @@ class MPMSimulator:
                 rot[k, a] = self.tool_rot.grad[f, k][a]
             gap[k] = self.tool_gap.grad[f, k]
 
-    def add_state_grad(self, grad: dict[str, np.ndarray], frame: int) -> None:
-        """Add adjoints (keys as in :meth:`get_state`; missing keys are zero) to a frame."""
+    def seed_state_grad(self, grad: dict[str, np.ndarray], frame: int) -> None:
+        """Set a frame's particle adjoints and add to its tools' (keys as in :meth:`get_state`; missing keys
+        are zero), after :meth:`clear_tool_grads`: the last frame's, where a step's adjoint starts."""
         n, k = self.n, max(self.n_tools, 1)
 
         def arr(key, shape):
             value = grad.get(key)
             return np.zeros(shape, np.float32) if value is None else np.ascontiguousarray(value, np.float32)
 
-        self._add_frame_grad(frame, arr("x", (n, 3)), arr("v", (n, 3)), arr("C", (n, 3, 3)), arr("F", (n, 3, 3)))
+        self._set_frame_grad(frame, arr("x", (n, 3)), arr("v", (n, 3)), arr("C", (n, 3, 3)), arr("F", (n, 3, 3)))
         if self.n_tools:
             self._add_tools_grad(frame, arr("tool_pos", (k, 3)), arr("tool_rot", (k, 4)), arr("tool_gap", (k,)))
 
@@ -1010,8 +1034,8 @@ class MPMSimulator:
         :meth:`load_recorded_step`) filled the frames.
 
         Restores the grid of substep f from the loaded recorded step, or recomputes it (P2G and the
-        grid update), then runs the adjoints in reverse order. The adjoints of U, sig, V and the affine
-        matrix must be zero on entry (:meth:`clear_particle_temporaries_grad`).
+        grid update), then runs the adjoints in reverse order: G2P, the grid update, the tools, and P2G
+        with the stress, the SVD and the trial F in one kernel (:meth:`p2g_adjoint`).
         """
         if self._loaded_grids is None:
             self.p2g(f)
@@ -1022,9 +1046,6 @@ class MPMSimulator:
         self.grid_op.grad(f)
         self.tool_kinematics.grad(f)
         self.p2g_adjoint(f)
-        self.compute_stress.grad(f)
-        self.svd_grad(f)
-        self.compute_trial_F.grad(f)
 
     def run_substeps(self, action: np.ndarray, step: int | None = None, record: bool = False) -> None:
         """Run one environment step into frames 1..substeps without wrapping back to frame 0.
@@ -1057,7 +1078,7 @@ class MPMSimulator:
             self.advance(f, True)
             self._save_grid(f, recorded["grid"], recorded["grid_boxes"])
         self.raise_if_unhealthy(self.substeps, step)
-        self._save_frames(recorded["particles"])
+        self._save_frames(recorded["particles"].reshape(-1))
         recorded.update(tool_pos=self.tool_pos.to_numpy(), tool_rot=self.tool_rot.to_numpy(),
                         tool_gap=self.tool_gap.to_numpy())
         return recorded
@@ -1076,20 +1097,21 @@ class MPMSimulator:
     def load_recorded_step(self, recorded: dict[str, np.ndarray]) -> None:
         """Restore the frames of :meth:`record_step`, as if the step had just been run with ``record``; its
         substeps' grids are restored by :meth:`substep_grad` until :meth:`release_recorded_step`."""
-        self._load_frames(recorded["particles"])
+        self._load_frames(recorded["particles"].reshape(-1))
         self.tool_pos.from_numpy(recorded["tool_pos"])
         self.tool_rot.from_numpy(recorded["tool_rot"])
         self.tool_gap.from_numpy(recorded["tool_gap"])
         self._loaded_grids = recorded
 
     @ti.kernel
-    def _save_grid(self, f: ti.i32, out: ti.types.ndarray(), boxes: ti.types.ndarray()):
+    def _save_grid(self, f: ti.i32, out: ti.types.ndarray(ndim=2), boxes: ti.types.ndarray(ndim=3)):
         """Substep f's box (``active_lo``, ``active_hi``) into ``boxes[f]`` and its nodes' mass, momentum
         and new velocity into ``out[f]``, GRID_CHANNELS per node, the box's nodes in C order."""
-        for d in range(3):
+        for d in ti.static(range(3)):
             boxes[f, 0, d] = self.active_lo[None][d]
             boxes[f, 1, d] = self.active_hi[None][d]
         lo, hi = ti.static(self.active_lo, self.active_hi)
+        ti.loop_config(serialize=True)  # a few thousand nodes: cheaper than waking the thread pool
         for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
             start = GRID_CHANNELS * self.box_index(cell)
             out[f, start] = self.grid_m[cell]
@@ -1098,14 +1120,14 @@ class MPMSimulator:
                 out[f, start + 4 + a] = self.grid_v_out[cell][a]
 
     @ti.kernel
-    def _load_grid(self, f: ti.i32, data: ti.types.ndarray(), boxes: ti.types.ndarray()):
+    def _load_grid(self, f: ti.i32, data: ti.types.ndarray(ndim=2), boxes: ti.types.ndarray(ndim=3)):
         """The inverse of :meth:`_save_grid`, and zero adjoints of the three grid fields on the box: what
         :meth:`p2g` and :meth:`grid_op` leave for the adjoint pass."""
-        for _ in range(1):
-            for d in ti.static(range(3)):
-                self.active_lo[None][d] = boxes[f, 0, d]
-                self.active_hi[None][d] = boxes[f, 1, d]
+        for d in ti.static(range(3)):
+            self.active_lo[None][d] = boxes[f, 0, d]
+            self.active_hi[None][d] = boxes[f, 1, d]
         lo, hi = ti.static(self.active_lo, self.active_hi)
+        ti.loop_config(serialize=True)  # a few thousand nodes: cheaper than waking the thread pool
         for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
             start = GRID_CHANNELS * self.box_index(cell)
             self.grid_m[cell] = data[f, start]
@@ -1123,37 +1145,42 @@ class MPMSimulator:
         return (rel[0] * size[1] + rel[1]) * size[2] + rel[2]
 
     @ti.kernel
-    def _save_frames(self, out: ti.types.ndarray()):
+    def _save_frames(self, out: ti.types.ndarray(ndim=1)):
+        """Every frame's particles into ``out``, a flat (frames * N * RECORD_CHANNELS,) view (indexed about
+        3x faster than a 3-d array)."""
         for f, p in ti.ndrange(self.n_frames, self.n):
+            start = (f * self.n + p) * RECORD_CHANNELS
             x, v, C, F = self.x[f, p], self.v[f, p], self.C[f, p], self.F[f, p]
             U, sig, V, affine = self.U[f, p], self.sig[f, p], self.V[f, p], self.affine[f, p]
             for a in ti.static(range(3)):
-                out[f, p, a] = x[a]
-                out[f, p, 3 + a] = v[a]
-                out[f, p, 6 + a] = sig[a, a]
+                out[start + a] = x[a]
+                out[start + 3 + a] = v[a]
+                out[start + 6 + a] = sig[a, a]
                 for b in ti.static(range(3)):
-                    out[f, p, 9 + 3 * a + b] = C[a, b]
-                    out[f, p, 18 + 3 * a + b] = F[a, b]
-                    out[f, p, 27 + 3 * a + b] = U[a, b]
-                    out[f, p, 36 + 3 * a + b] = V[a, b]
-                    out[f, p, 45 + 3 * a + b] = affine[a, b]
+                    out[start + 9 + 3 * a + b] = C[a, b]
+                    out[start + 18 + 3 * a + b] = F[a, b]
+                    out[start + 27 + 3 * a + b] = U[a, b]
+                    out[start + 36 + 3 * a + b] = V[a, b]
+                    out[start + 45 + 3 * a + b] = affine[a, b]
 
     @ti.kernel
-    def _load_frames(self, data: ti.types.ndarray()):
+    def _load_frames(self, data: ti.types.ndarray(ndim=1)):
+        """The inverse of :meth:`_save_frames`."""
         for f, p in ti.ndrange(self.n_frames, self.n):
+            start = (f * self.n + p) * RECORD_CHANNELS
             x, v = ti.Vector.zero(ti.f32, 3), ti.Vector.zero(ti.f32, 3)
             C, F, U = ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3)
             sig, V, affine = ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3)
             for a in ti.static(range(3)):
-                x[a] = data[f, p, a]
-                v[a] = data[f, p, 3 + a]
-                sig[a, a] = data[f, p, 6 + a]
+                x[a] = data[start + a]
+                v[a] = data[start + 3 + a]
+                sig[a, a] = data[start + 6 + a]
                 for b in ti.static(range(3)):
-                    C[a, b] = data[f, p, 9 + 3 * a + b]
-                    F[a, b] = data[f, p, 18 + 3 * a + b]
-                    U[a, b] = data[f, p, 27 + 3 * a + b]
-                    V[a, b] = data[f, p, 36 + 3 * a + b]
-                    affine[a, b] = data[f, p, 45 + 3 * a + b]
+                    C[a, b] = data[start + 9 + 3 * a + b]
+                    F[a, b] = data[start + 18 + 3 * a + b]
+                    U[a, b] = data[start + 27 + 3 * a + b]
+                    V[a, b] = data[start + 36 + 3 * a + b]
+                    affine[a, b] = data[start + 45 + 3 * a + b]
             self.x[f, p], self.v[f, p], self.C[f, p], self.F[f, p] = x, v, C, F
             self.U[f, p], self.sig[f, p], self.V[f, p], self.affine[f, p] = U, sig, V, affine
 
