@@ -404,16 +404,32 @@ class MPMSimulator:
 
     @ti.func
     def scatter(self, c, f, p, affine):
-        """Add particle p's mass and APIC momentum to chunk c's grid; return its stencil's lowest node (3,)."""
+        """Add particle p's mass and APIC momentum to chunk c's grid; return its stencil's lowest node (3,).
+
+        A node at integer offset o gets ``weight (m v + affine (o - fx) dx)``, the bracket built up one axis
+        at a time from the affine matrix's columns (adds instead of a 3x3 product per node).
+        """
         base, fx, w = self.stencil(self.x[f, p])
         p_mass = self.particle_mass()
-        momentum = p_mass * self.v[f, p]
-        for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-            offset = ti.Vector([i, j, k])
-            dpos = (ti.cast(offset, ti.f32) - fx) * self.dx
-            weight = w[i, 0] * w[j, 1] * w[k, 2]
-            added = weight * (momentum + affine @ dpos)
-            self.add_to_chunk(c, base + offset, ti.Vector([added[0], added[1], added[2], weight * p_mass]))
+        columns = [affine[:, d] * self.dx for d in ti.static(range(3))]
+        start = p_mass * self.v[f, p] - affine @ (fx * self.dx)
+        for i in ti.static(range(3)):
+            along_i = start
+            if ti.static(i > 0):
+                along_i = start + ti.static(float(i)) * columns[0]
+            for j in ti.static(range(3)):
+                along_ij = along_i
+                if ti.static(j > 0):
+                    along_ij = along_i + ti.static(float(j)) * columns[1]
+                w_ij = w[i, 0] * w[j, 1]
+                for k in ti.static(range(3)):
+                    momentum = along_ij
+                    if ti.static(k > 0):
+                        momentum = along_ij + ti.static(float(k)) * columns[2]
+                    weight = w_ij * w[k, 2]
+                    added = weight * momentum
+                    self.add_to_chunk(c, base + ti.Vector([i, j, k]),
+                                      ti.Vector([added[0], added[1], added[2], weight * p_mass]))
         return base
 
     @ti.func
@@ -719,19 +735,25 @@ class MPMSimulator:
 
     @ti.func
     def grid_to_particle(self, f, p):
-        """G2P of particle p: its velocity, affine velocity C and position at frame f + 1."""
+        """G2P of particle p: its velocity, affine velocity C and position at frame f + 1.
+
+        ``C = 4 / dx^2 sum_o w g_v (o - fx)^T dx`` is summed as ``sum_o w g_v o_d`` per axis d (adds, no
+        outer product per node) less ``v fx_d``.
+        """
         base, fx, w = self.stencil(self.x[f, p])
         new_v = ti.Vector.zero(ti.f32, 3)
-        new_C = ti.Matrix.zero(ti.f32, 3, 3)
+        offset_sums = [ti.Vector.zero(ti.f32, 3) for _ in ti.static(range(3))]  # sum of o_d w g_v
         for i, j, k in ti.static(ti.ndrange(3, 3, 3)):
-            offset = ti.Vector([i, j, k])
-            dpos = ti.cast(offset, ti.f32) - fx
-            g_v = self.grid_v_out[base + offset]
-            weight = w[i, 0] * w[j, 1] * w[k, 2]
-            new_v += weight * g_v
-            new_C += (4.0 * self.inv_dx * weight) * g_v.outer_product(dpos)
+            weighted = (w[i, 0] * w[j, 1] * w[k, 2]) * self.grid_v_out[base + ti.Vector([i, j, k])]
+            new_v += weighted
+            for d, o in ti.static(enumerate((i, j, k))):
+                if ti.static(o == 1):
+                    offset_sums[d] += weighted
+                elif ti.static(o == 2):
+                    offset_sums[d] += 2.0 * weighted
+        scale = 4.0 * self.inv_dx
         self.v[f + 1, p] = new_v
-        self.C[f + 1, p] = new_C
+        self.C[f + 1, p] = ti.Matrix.cols([scale * (offset_sums[d] - fx[d] * new_v) for d in ti.static(range(3))])
         self.x[f + 1, p] = ti.min(ti.max(self.x[f, p] + self.dt * new_v, self.x_low), self.x_high)
 
     @ti.kernel
