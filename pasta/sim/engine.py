@@ -1075,6 +1075,7 @@ class MPMSimulator:
         With ``record`` (a differentiable simulator), every substep keeps its SVD and affine matrix, so
         that the step's adjoint can follow (:meth:`substep_grad`).
         """
+        self._loaded_grids = None  # the frames no longer hold a loaded recorded step
         self.load_action(self.check_action(action, step))
         for f in range(self.substeps):
             self.advance(f, record)
@@ -1089,12 +1090,15 @@ class MPMSimulator:
         The arrays come from the buffers given back by :meth:`release_recorded_step` when there are any
         (a fresh one costs a page fault per 4 KiB on first write; the grid's untouched pages cost nothing).
         """
+        if not self.differentiable:
+            raise RuntimeError("record_step needs a simulator built with differentiable=True")
         if self._spare_records:
             recorded = self._spare_records.pop()
         else:
             recorded = {"particles": np.empty((self.n_frames, self.n, RECORD_CHANNELS), np.float32),
                         "grid": np.empty((self.substeps, self.n_grid**3 * GRID_CHANNELS), np.float32),
                         "grid_boxes": np.empty((self.substeps, 2, 3), np.int32)}
+        self._loaded_grids = None
         self.load_action(self.check_action(action, step))
         for f in range(self.substeps):
             self.advance(f, True)
