@@ -88,7 +88,9 @@ class SimConfig(Frozen):
     # Host memory (MiB) a differentiable episode (GBTO) keeps for its backward pass: the substep frames and
     # SVDs of its first steps, as many as fit (about 18 MiB a step at 5000 particles and 15 substeps), so
     # the backward pass restores them instead of recomputing those steps; 0 recomputes every step from its
-    # checkpoint (least memory). The gradients are the same bit for bit (pasta.sim.autodiff).
+    # checkpoint (least memory). The gradients are the same bit for bit (pasta.sim.autodiff). Measured on the
+    # CPU only: on CUDA the kept frames cross to host memory and back every step, which may cost more
+    # than recomputing them there.
     adjoint_memory_mb: float = Field(default=1024, ge=0)
     steps_per_skill: int = Field(default=50, ge=1)
     settle_steps: int = Field(default=10, ge=0)
