@@ -375,7 +375,7 @@ class MPMSimulator:
 
     @ti.func
     def fresh_affine(self, f, p, record: ti.template()):
-        """Trial F, SVD and stress of particle p in one go: its affine matrix (3, 3), kept in ``affine``.
+        """Trial F, SVD and stress of particle p in one go, kept as its APIC affine matrix (3, 3) in ``affine``.
 
         The affine matrix goes to frame f when differentiable, else to the single frame 0. With
         ``record``, the SVD is kept in frame f too, for the adjoint pass.
@@ -758,13 +758,13 @@ class MPMSimulator:
 
     @ti.kernel
     def advance(self, f: ti.i32, record: ti.template()):
-        """One substep from frame f to f + 1 in one kernel: trial F, SVD and stress fused into P2G, the
-        sum of the chunks' grids and their clearing fused into the grid update, then G2P.
+        """One substep from frame f to f + 1 in one kernel: trial F, SVD and stress per particle, the ordered
+        P2G, the tools, the sum of the chunks' grids and their clearing fused into the grid update, then G2P.
 
         Only the box of the particles' stencil nodes is visited; ``grid_v_out`` elsewhere is left as it
         was (G2P reads none of it). With ``record``, the SVD and the affine matrices of frame f are kept for
         :meth:`substep_grad`, and the box's mass and momentum in ``grid_m`` and ``grid_v_in`` for
-        :meth:`save_grid`.
+        :meth:`record_step`.
         """
         for p in range(self.n):
             self.fresh_affine(f, p, record)
