@@ -4,7 +4,7 @@ The forward pass keeps one checkpoint (particles and tool poses) per
 environment step and, while they fit in the simulator's ``adjoint_memory_bytes``,
 the step's substep frames with their SVDs and grids (``MPMSimulator.record_step``).
 The backward pass walks the steps in reverse: it restores the step's substep
-frames, or recomputes them from its checkpoint where they were not kept, seeds
+frames, or records them anew from its checkpoint where they were not kept, seeds
 the adjoint of the step's last frame and runs the substep adjoints. Both ways
 give the same gradients; keeping the frames spares the backward pass a forward
 step's work per step.
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from pasta.sim.engine import RECORD_CHANNELS, MPMSimulator
+from pasta.sim.engine import MPMSimulator
 
 STATE_KEYS = ("x", "v", "C", "F", "tool_pos", "tool_rot", "tool_gap")
 
@@ -47,16 +47,20 @@ def simulate_episode(sim: MPMSimulator, state0: dict[str, np.ndarray], actions: 
     sim.set_state(state0)
     checkpoints = [sim.get_state()]
     recorded: list[dict[str, np.ndarray] | None] = []
-    kept_bytes, next_bytes = 0, sim.n_frames * sim.n * RECORD_CHANNELS * 4  # the particles' share, at first
+    kept_bytes = 0
     for t, action in enumerate(actions):
-        # A differentiable simulator steps with the recording kernel, whose float rounding the backward
-        # pass's recomputation repeats exactly (the plain kernel's may differ in the last bits).
-        if sim.differentiable and kept_bytes + next_bytes <= sim.adjoint_memory_bytes:
-            recorded.append(sim.record_step(action, step=t))
-            next_bytes = sim.recorded_bytes(recorded[-1])  # the next step's will be about the same
-            kept_bytes += next_bytes
+        if sim.differentiable:
+            # Every step records, kept or not: the backward pass records the steps it was not given anew,
+            # with the same kernel, so both give the same float rounding.
+            step = sim.record_step(action, step=t)
+            if kept_bytes + sim.recorded_bytes(step) <= sim.adjoint_memory_bytes:
+                kept_bytes += sim.recorded_bytes(step)
+                recorded.append(step)
+            else:
+                sim.release_recorded_step(step)  # its buffers serve the next step
+                recorded.append(None)
         else:
-            sim.run_substeps(action, step=t, record=sim.differentiable)
+            sim.run_substeps(action, step=t)
             recorded.append(None)
         sim.copy_frame(sim.substeps, 0)
         checkpoints.append(sim.get_state())
@@ -78,20 +82,20 @@ def backpropagate_episode(sim: MPMSimulator, episode: Episode,
     action_grads = np.zeros_like(episode.actions)
     carried = {key: grads[key][T] for key in grads}
     for t in reversed(range(T)):
-        if episode.recorded[t] is None:
+        recorded = episode.recorded[t]
+        if recorded is None:
+            # Recorded anew from its checkpoint, with the same kernel as a kept step: the same gradients.
             sim.set_state(episode.checkpoints[t])
-            sim.run_substeps(episode.actions[t], step=t, record=True)
-        else:
-            sim.load_recorded_step(episode.recorded[t])
-            sim.load_action(episode.actions[t])
+            recorded = sim.record_step(episode.actions[t], step=t)
+        sim.load_recorded_step(recorded)
+        sim.load_action(episode.actions[t])
         sim.clear_tool_grads()
         sim.seed_state_grad(carried, sim.substeps)
         for f in reversed(range(sim.substeps)):
             sim.substep_grad(f)
-        if episode.recorded[t] is not None:
-            # The buffers go back for the next episode; a second backward pass recomputes this step.
-            sim.release_recorded_step(episode.recorded[t])
-            episode.recorded[t] = None
+        # The buffers go back for the next step or episode; a second backward pass records this step anew.
+        sim.release_recorded_step(recorded)
+        episode.recorded[t] = None
         action_grads[t] = sim.read_action_grad()
         carried = sim.read_state_grad(0)
         for key in grads:

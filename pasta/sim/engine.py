@@ -36,9 +36,11 @@ from pasta.sim.tool_geometry import box_sdf_normal, capsule_sdf_normal, knife_sd
 ACTION_DIMS = {"box": 6, "knife": 3, "gripper": 7, "rolling_pin": 6}
 SINGULAR_VALUE_FLOOR = 0.05
 SVD_GAP_FLOOR = 1e-6
-# Floats per particle and frame in a recorded step (MPMSimulator.record_step): x, v, the singular
-# values, then C, F, U, V and the affine matrix row by row.
-RECORD_CHANNELS = 54
+# A particle's slot of a frame in a recorded step (MPMSimulator.record_step): where each quantity starts
+# among its RECORD_CHANNELS floats. x, v, the trial F's singular values, the post-plastic ones and the
+# deviatoric Hencky strain (3 each), then C, F and the SVD's U and V (3 x 3, row by row).
+RECORD_LAYOUT = {"x": 0, "v": 3, "sig": 6, "sig_plastic": 9, "strain_dev": 12, "C": 15, "F": 24, "U": 33, "V": 42}
+RECORD_CHANNELS = 51
 # Floats per grid node of a recorded substep (MPMSimulator.record_step): mass, momentum, new velocity.
 GRID_CHANNELS = 7
 MAX_SPEED = 1e3
@@ -62,17 +64,18 @@ SVD_METHODS = {"taichi": taichi_svd, "fast": fast_svd}
 
 @ti.func
 def svd_adjoint_in_frame(sig, u_skew, v_skew, g_sig):
-    """The adjoint of ``F = U sig V^T`` in the singular frames, ``U^T g_F V`` (3, 3), given
-    ``u_skew = U^T g_U - g_U^T U``, ``v_skew = V^T g_V - g_V^T V`` (3, 3) and the singular values' adjoint
-    (3,): the closed form of the SVD's derivative, with the gaps between squared singular values kept
-    at least ``SVD_GAP_FLOOR`` away from zero. Serves every method of ``SVD_METHODS``.
+    """The adjoint of ``F = U diag(sig) V^T`` in the singular frames, ``U^T g_F V`` (3, 3), given the
+    singular values ``sig`` (3,), ``u_skew = U^T g_U - g_U^T U``, ``v_skew = V^T g_V - g_V^T V`` (3, 3) and
+    the singular values' adjoint (3,): the closed form of the SVD's derivative, with the gaps between
+    squared singular values kept at least ``SVD_GAP_FLOOR`` away from zero. Serves every method of
+    ``SVD_METHODS``.
     """
     X = ti.Matrix([[g_sig[0], 0.0, 0.0], [0.0, g_sig[1], 0.0], [0.0, 0.0, g_sig[2]]])
     for i, j in ti.static(ti.ndrange(3, 3)):
         if ti.static(i != j):
-            gap = sig[j, j] ** 2 - sig[i, i] ** 2
+            gap = sig[j] ** 2 - sig[i] ** 2
             gap = ti.select(gap >= 0.0, ti.max(gap, SVD_GAP_FLOOR), ti.min(gap, -SVD_GAP_FLOOR))
-            X[i, j] = (u_skew[i, j] * sig[j, j] + sig[i, i] * v_skew[i, j]) / gap
+            X[i, j] = (u_skew[i, j] * sig[j] + sig[i] * v_skew[i, j]) / gap
     return X
 
 
@@ -154,7 +157,9 @@ class MPMSimulator:
         # the substeps (pasta.sim.autodiff; SimConfig.adjoint_memory_mb, set by simulator_for).
         self.adjoint_memory_bytes = 0
         self._spare_records: list[dict[str, np.ndarray]] = []  # buffers of released recorded steps
-        self._loaded_grids: dict[str, np.ndarray] | None = None  # the recorded step substep_grad restores
+        # What advance writes to when it records nothing (its record arguments must still be arrays).
+        self._no_record = (np.zeros(1, np.float32), np.zeros((1, 1), np.float32), np.zeros((1, 2, 3), np.int32))
+        self._loaded_step: dict[str, np.ndarray] | None = None  # the recorded step substep_grad differentiates
         self.boundary_cells = boundary_cells
         self.p_vol = (0.5 * self.dx) ** 2
         self.x_low = max(1, lower_bound_cells) * self.dx
@@ -176,13 +181,9 @@ class MPMSimulator:
         self.v = ti.Vector.field(3, ti.f32, shape=(frames, n), needs_grad=grad)
         self.C = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
         self.F = ti.Matrix.field(3, 3, ti.f32, shape=(frames, n), needs_grad=grad)
-        # Per-substep SVD of the trial F and APIC affine matrix (one frame when not differentiable), kept
-        # for the adjoint pass (MPMSimulator.p2g_adjoint), which therefore never recomputes an SVD.
-        svd_frames = frames if grad else 1
-        self.U = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n))
-        self.sig = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n))
-        self.V = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n))
-        self.affine = ti.Matrix.field(3, 3, ti.f32, shape=(svd_frames, n))
+        # The APIC affine matrix of each substep (one frame when not differentiable). The adjoint pass reads
+        # the states, SVDs and return mappings from a recorded step (MPMSimulator.record_step) instead.
+        self.affine = ti.Matrix.field(3, 3, ti.f32, shape=(frames if grad else 1, n))
         self.grid_m = ti.field(ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_in = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
         self.grid_v_out = ti.Vector.field(3, ti.f32, shape=(g, g, g), needs_grad=grad)
@@ -281,7 +282,8 @@ class MPMSimulator:
     # ------------------------------------------------------------- constitutive
     @ti.func
     def plastic_singular_values(self, sig):
-        """The return mapping on the singular values of the trial F: those of the post-plastic F (3,).
+        """The return mapping on the singular values of the trial F (3, 3, diagonal): those of the
+        post-plastic F (3,) and the deviatoric part of the trial Hencky strain (3,).
 
         The floored values' logarithms (Hencky strain) keep their mean and have their deviatoric part
         scaled down to the yield surface where it lies beyond it.
@@ -291,7 +293,7 @@ class MPMSimulator:
         eps_dev = eps - eps.sum() / 3.0
         dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + 1e-8)
         excess = ti.max(dev_norm - self.yield_stress[None] / (2.0 * self.mu[None]), 0.0)
-        return ti.exp(eps - (excess / dev_norm) * eps_dev)
+        return ti.exp(eps - (excess / dev_norm) * eps_dev), eps_dev
 
     @ti.func
     def principal_stress(self, s_new):
@@ -301,37 +303,27 @@ class MPMSimulator:
         return 2.0 * self.mu[None] * (s_new * s_new - s_new) + self.lam[None] * J * (J - 1.0)
 
     @ti.func
-    def constitutive(self, U, sig, V):
-        """Return mapping and Kirchhoff stress from the SVD of the trial F.
-
-        Returns the post-plastic F ``U diag(s) V^T`` (3, 3) and the Kirchhoff stress (3, 3), which with
-        ``R = U V^T`` is ``2 mu (F - R) F^T + lam J (J - 1) I = U diag(principal_stress(s)) U^T``.
-        """
-        s_new = self.plastic_singular_values(sig)
-        d = self.principal_stress(s_new)
-        F_new = ti.Matrix.cols([U[:, i] * s_new[i] for i in ti.static(range(3))]) @ V.transpose()
+    def affine_momentum(self, U, d, C):
+        """The APIC affine momentum matrix (3, 3) of a particle with Kirchhoff stress ``U diag(d) U^T`` and
+        affine velocity ``C`` (3, 3)."""
         stress = ti.Matrix.cols([U[:, i] * d[i] for i in ti.static(range(3))]) @ U.transpose()
-        return F_new, stress
+        return (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + self.particle_mass() * C
 
     @ti.func
-    def constitutive_adjoint(self, f, p, g_affine):
+    def constitutive_adjoint(self, rec: ti.template(), f, p, g_affine, U, V, s_new, d):
         """Hand-written adjoint of particle p's trial F, SVD and stress, given the adjoint of its affine
         matrix (3, 3) and of ``F[f + 1]``: sets the adjoints of ``C[f]`` and ``F[f]``.
 
-        Reads the SVD of substep f kept by :meth:`fresh_affine` and works in its singular frames, where
-        the stress ``U diag(d) U^T`` and the new F ``U diag(s_new) V^T`` are diagonal.
+        Works in the singular frames ``U``, ``V`` (3, 3) of substep f's trial F, where the stress
+        ``U diag(d) U^T`` and the new F ``U diag(s_new) V^T`` are diagonal, from the return mapping that
+        :meth:`fresh_affine` recorded in ``rec`` (``sig``, ``sig_plastic`` = ``s_new``, ``strain_dev``).
         """
-        U, sig, V = self.U[f, p], self.sig[f, p], self.V[f, p]
+        sig, eps_dev = self.recorded_vector(rec, f, p, "sig"), self.recorded_vector(rec, f, p, "strain_dev")
         mu, lam = self.mu[None], self.lam[None]
-        # The forward return mapping (plastic_singular_values, principal_stress), with its intermediates.
-        s = ti.max(ti.Vector([sig[0, 0], sig[1, 1], sig[2, 2]]), SINGULAR_VALUE_FLOOR)
-        eps = ti.log(s)
-        eps_dev = eps - eps.sum() / 3.0
+        s = ti.max(sig, SINGULAR_VALUE_FLOOR)
         dev_norm = ti.sqrt(eps_dev.dot(eps_dev) + 1e-8)
         yield_strain = self.yield_stress[None] / (2.0 * mu)
-        s_new = ti.exp(eps - (ti.max(dev_norm - yield_strain, 0.0) / dev_norm) * eps_dev)
         J = s_new[0] * s_new[1] * s_new[2]
-        d = 2.0 * mu * (s_new * s_new - s_new) + lam * J * (J - 1.0)
 
         g_stress = (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * g_affine
         Ut = U.transpose()
@@ -347,7 +339,7 @@ class MPMSimulator:
             # eps' = mean(eps) + yield * dev / |dev|: the mean passes through, the rest is projected.
             h = yield_strain * (g_eps_new / dev_norm - eps_dev * (eps_dev.dot(g_eps_new) / dev_norm**3))
             g_eps = g_eps_new.sum() / 3.0 + h - h.sum() / 3.0
-        g_sig = ti.Vector([ti.select(sig[i, i] > SINGULAR_VALUE_FLOOR, g_eps[i] / s[i], 0.0)
+        g_sig = ti.Vector([ti.select(sig[i] > SINGULAR_VALUE_FLOOR, g_eps[i] / s[i], 0.0)
                            for i in ti.static(range(3))])
         # U^T g_U = Q diag(d) + M diag(s_new) and V^T g_V = M^T diag(s_new).
         A = ti.Matrix([[Q[i, j] * d[j] + M[i, j] * s_new[j] for j in ti.static(range(3))]
@@ -355,7 +347,7 @@ class MPMSimulator:
         B = ti.Matrix([[M[j, i] * s_new[j] for j in ti.static(range(3))] for i in ti.static(range(3))])
         g_F_trial = U @ svd_adjoint_in_frame(sig, A - A.transpose(), B - B.transpose(), g_sig) @ V.transpose()
         # F_trial = (I + dt C) F; the affine matrix holds m C too.
-        C, F = self.C[f, p], self.F[f, p]
+        C, F = self.recorded_matrix(rec, f, p, "C"), self.recorded_matrix(rec, f, p, "F")
         self.C.grad[f, p] = self.dt * g_F_trial @ F.transpose() + self.particle_mass() * g_affine
         self.F.grad[f, p] = (ti.Matrix.identity(ti.f32, 3) + self.dt * C).transpose() @ g_F_trial
 
@@ -365,26 +357,23 @@ class MPMSimulator:
         return self.p_vol * self.density[None]
 
     @ti.func
-    def stress_for(self, f, p, U, sig, V):
-        """Write the post-plastic F of particle p to frame f + 1; return its APIC affine momentum matrix (3, 3)."""
-        F_new, stress = self.constitutive(U, sig, V)
-        self.F[f + 1, p] = F_new
-        return (-self.dt * self.p_vol * 4.0 * self.inv_dx * self.inv_dx) * stress + (
-            self.particle_mass() * self.C[f, p]
-        )
-
-    @ti.func
-    def fresh_affine(self, f, p, record: ti.template()):
-        """Trial F, SVD and stress of particle p in one go, kept as its APIC affine matrix (3, 3) in ``affine``.
+    def fresh_affine(self, f, p, record: ti.template(), out: ti.template()):
+        """Trial F, SVD, return mapping and stress of particle p in one go: writes the post-plastic F to frame
+        f + 1 and the APIC affine matrix (3, 3) to ``affine``.
 
         The affine matrix goes to frame f when differentiable, else to the single frame 0. With
-        ``record``, the SVD is kept in frame f too, for the adjoint pass.
+        ``record``, particle p's state at frame f with its SVD and return mapping goes to ``out``
+        (:meth:`write_record`), for the adjoint pass.
         """
-        F_trial = (ti.Matrix.identity(ti.f32, 3) + self.dt * self.C[f, p]) @ self.F[f, p]
+        C, F = self.C[f, p], self.F[f, p]
+        F_trial = (ti.Matrix.identity(ti.f32, 3) + self.dt * C) @ F
         U, sig, V = self.decompose(F_trial)
-        affine = self.stress_for(f, p, U, sig, V)
+        s_new, eps_dev = self.plastic_singular_values(sig)
+        self.F[f + 1, p] = ti.Matrix.cols([U[:, i] * s_new[i] for i in ti.static(range(3))]) @ V.transpose()
+        affine = self.affine_momentum(U, self.principal_stress(s_new), C)
         if ti.static(record):
-            self.U[f, p], self.sig[f, p], self.V[f, p] = U, sig, V
+            self.write_record(out, f, p, self.x[f, p], self.v[f, p], C, F,
+                              ti.Vector([sig[0, 0], sig[1, 1], sig[2, 2]]), s_new, eps_dev, U, V)
         if ti.static(self.differentiable):
             self.affine[f, p] = affine
         else:
@@ -497,45 +486,28 @@ class MPMSimulator:
         return total
 
     @ti.kernel
-    def p2g(self, f: ti.i32):
-        """Scatter mass and momentum (the stored affine matrices of frame f) into grid_m and grid_v_in.
-
-        Sets every node of the active box: mass and momentum, and zero ``grid_v_out`` and, when
-        differentiable, zero adjoints of the three grid fields. The grid kernels of the adjoint pass
-        visit only that box.
-        """
-        self.particles_to_chunks(f)
-        self.find_active_box()  # serial, on the launching thread
-        lo, hi = ti.static(self.active_lo, self.active_hi)
-        for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
-            node = self.gather_chunks(cell)
-            self.grid_m[cell] = node[3]
-            self.grid_v_in[cell] = ti.Vector([node[0], node[1], node[2]])
-            self.grid_v_out[cell] = ti.Vector.zero(ti.f32, 3)
-            if ti.static(self.differentiable):
-                self.grid_m.grad[cell] = 0.0
-                self.grid_v_in.grad[cell] = ti.Vector.zero(ti.f32, 3)
-                self.grid_v_out.grad[cell] = ti.Vector.zero(ti.f32, 3)
-
-    @ti.kernel
-    def p2g_adjoint(self, f: ti.i32):
-        """Hand-written adjoint of ``p2g`` and, per particle, of the stress before it: grid adjoints to x[f],
+    def p2g_adjoint(self, f: ti.i32, rec: ti.types.ndarray(ndim=1)):
+        """Hand-written adjoint of P2G and, per particle, of the stress before it: grid adjoints to x[f],
         v[f] and the affine matrix, and from it (:meth:`constitutive_adjoint`) to C[f] and F[f]. Sets the
-        adjoints of v, C and F at frame f and adds to x's, which :meth:`g2p_adjoint` set.
+        adjoints of v, C and F at frame f and adds to x's, which :meth:`g2p_adjoint` set. The affine
+        matrix is rebuilt from the kept SVD and return mapping (a few products) rather than kept.
 
         A node's offset from the particle is ``(o - fx) dx`` for the node's integer offset ``o``, so the
         affine matrix's part of its momentum is built from the matrix's columns, and the sums over the
         27 nodes that a product with the affine matrix or ``fx`` would repeat are taken once (``g_momentum``
-        and ``offset_sums``).
+        and ``offset_sums``). Frame f's particles come from the recorded step ``rec``.
         """
         for p in range(self.n):
-            base, fx, w = self.stencil(self.x[f, p])
+            base, fx, w = self.stencil(self.recorded_vector(rec, f, p, "x"))
             slope = bspline_slopes(fx)
             p_mass = self.particle_mass()
-            affine = self.affine[f, p]
+            U, V = self.recorded_matrix(rec, f, p, "U"), self.recorded_matrix(rec, f, p, "V")
+            s_new = self.recorded_vector(rec, f, p, "sig_plastic")
+            stress_values = self.principal_stress(s_new)
+            affine = self.affine_momentum(U, stress_values, self.recorded_matrix(rec, f, p, "C"))
             columns = [affine[:, d] * self.dx for d in ti.static(range(3))]
             # momentum + affine @ ((o - fx) dx), accumulated one axis at a time over the offsets o.
-            start = p_mass * self.v[f, p] - affine @ (fx * self.dx)
+            start = p_mass * self.recorded_vector(rec, f, p, "v") - affine @ (fx * self.dx)
             g_momentum = ti.Vector.zero(ti.f32, 3)
             offset_sums = [ti.Vector.zero(ti.f32, 3) for _ in ti.static(range(3))]  # sum of o_d w g_v
             g_x = ti.Vector.zero(ti.f32, 3)
@@ -557,7 +529,7 @@ class MPMSimulator:
             g_affine = ti.Matrix.cols([(offset_sums[d] - fx[d] * g_momentum) * self.dx for d in ti.static(range(3))])
             self.v.grad[f, p] = p_mass * g_momentum
             self.x.grad[f, p] += g_x - affine.transpose() @ g_momentum
-            self.constitutive_adjoint(f, p, g_affine)
+            self.constitutive_adjoint(rec, f, p, g_affine, U, V, s_new, stress_values)
 
     @ti.kernel
     def tool_kinematics(self, f: ti.i32):
@@ -671,35 +643,40 @@ class MPMSimulator:
     @ti.func
     def collide(self, f, k: ti.template(), finger: ti.template(), node, v):
         """Project the grid velocity ``v`` at world point ``node`` against tool k."""
-        R0 = quat_to_matrix(self.tool_rot[f, k])
-        local = R0.transpose() @ (node - self.tool_pos[f, k])
-        gap0 = self.tool_gap[f, k]
-        sdf, normal_local = self.local_sdf_normal(k, finger, local, gap0)
-        normal = R0 @ normal_local
         softness = self.softness[None]
-        influence = ti.min(ti.exp(-sdf * softness), 1.0)
-        in_contact = sdf <= 0.0 or (softness > 0.0 and influence > SOFT_CONTACT_CUTOFF)
-        # Rigid velocity of the tool's material point at this node, including the gap motion.
-        finger_shift0 = ti.Vector.zero(ti.f32, 3)
-        finger_shift1 = ti.Vector.zero(ti.f32, 3)
-        if ti.static(self.tool_kinds[k] == "gripper"):
-            sign = ti.static(1.0 if finger == 0 else -1.0)
-            finger_shift0 = ti.Vector([sign * 0.5 * gap0, 0.0, 0.0])
-            finger_shift1 = ti.Vector([sign * 0.5 * self.tool_gap[f + 1, k], 0.0, 0.0])
-        R1 = quat_to_matrix(self.tool_rot[f + 1, k])
-        moved = self.tool_pos[f + 1, k] + R1 @ (local - finger_shift0 + finger_shift1)
-        v_tool = (moved - node) / self.dt
-        rel = v - v_tool
-        normal_speed = rel.dot(normal)
-        # Nodes inside the tool leave it at a speed that removes a fraction of their depth per substep.
-        expel = self.tool_expel_rate[k] * ti.max(-sdf, 0.0) / self.dt
-        removed = ti.min(normal_speed - expel, 0.0)
-        tangential = rel - normal_speed * normal
-        t_norm = ti.sqrt(tangential.dot(tangential) + 1e-20)
-        with_friction = tangential / t_norm * ti.max(0.0, t_norm + removed * self.tool_friction[k])
-        tangential = ti.select(removed < 0.0, with_friction, tangential) + ti.max(normal_speed, expel) * normal
-        projected = v_tool + rel * (1.0 - influence) + tangential * influence
-        return ti.select(in_contact, projected, v)
+        probe = quat_to_matrix(self.tool_rot[f, k]).transpose() @ (node - self.tool_pos[f, k])
+        sdf_probe, _ = self.local_sdf_normal(k, finger, probe, self.tool_gap[f, k])
+        in_contact = sdf_probe <= 0.0 or (softness > 0.0 and ti.exp(-sdf_probe * softness) > SOFT_CONTACT_CUTOFF)
+        result = v
+        # A branch, not a select: the adjoint pass then skips the tool's terms at nodes out of contact.
+        if in_contact:
+            R0 = quat_to_matrix(self.tool_rot[f, k])
+            local = R0.transpose() @ (node - self.tool_pos[f, k])
+            gap0 = self.tool_gap[f, k]
+            sdf, normal_local = self.local_sdf_normal(k, finger, local, gap0)
+            normal = R0 @ normal_local
+            influence = ti.min(ti.exp(-sdf * softness), 1.0)
+            # Rigid velocity of the tool's material point at this node, including the gap motion.
+            finger_shift0 = ti.Vector.zero(ti.f32, 3)
+            finger_shift1 = ti.Vector.zero(ti.f32, 3)
+            if ti.static(self.tool_kinds[k] == "gripper"):
+                sign = ti.static(1.0 if finger == 0 else -1.0)
+                finger_shift0 = ti.Vector([sign * 0.5 * gap0, 0.0, 0.0])
+                finger_shift1 = ti.Vector([sign * 0.5 * self.tool_gap[f + 1, k], 0.0, 0.0])
+            R1 = quat_to_matrix(self.tool_rot[f + 1, k])
+            moved = self.tool_pos[f + 1, k] + R1 @ (local - finger_shift0 + finger_shift1)
+            v_tool = (moved - node) / self.dt
+            rel = v - v_tool
+            normal_speed = rel.dot(normal)
+            # Nodes inside the tool leave it at a speed that removes a fraction of their depth per substep.
+            expel = self.tool_expel_rate[k] * ti.max(-sdf, 0.0) / self.dt
+            removed = ti.min(normal_speed - expel, 0.0)
+            tangential = rel - normal_speed * normal
+            t_norm = ti.sqrt(tangential.dot(tangential) + 1e-20)
+            with_friction = tangential / t_norm * ti.max(0.0, t_norm + removed * self.tool_friction[k])
+            tangential = ti.select(removed < 0.0, with_friction, tangential) + ti.max(normal_speed, expel) * normal
+            result = v_tool + rel * (1.0 - influence) + tangential * influence
+        return result
 
     @ti.func
     def node_velocity(self, f, cell, m, momentum):
@@ -725,7 +702,8 @@ class MPMSimulator:
 
     @ti.kernel
     def grid_op(self, f: ti.i32):
-        """The grid update of the adjoint pass, on the active box that :meth:`p2g` set."""
+        """The grid update on the active box, from ``grid_m`` and ``grid_v_in`` (as :meth:`g2p_adjoint` restores
+        them): the primal of Taichi's adjoint ``grid_op.grad`` in :meth:`substep_grad`."""
         # The box's bounds are read in the loop statement: Taichi's autodiff refuses statements before a loop.
         lo, hi = ti.static(self.active_lo, self.active_hi)
         for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
@@ -757,21 +735,27 @@ class MPMSimulator:
         self.x[f + 1, p] = ti.min(ti.max(self.x[f, p] + self.dt * new_v, self.x_low), self.x_high)
 
     @ti.kernel
-    def advance(self, f: ti.i32, record: ti.template()):
+    def advance(self, f: ti.i32, record: ti.template(), particles: ti.types.ndarray(ndim=1),
+                grid: ti.types.ndarray(ndim=2), boxes: ti.types.ndarray(ndim=3)):
         """One substep from frame f to f + 1 in one kernel: trial F, SVD and stress per particle, the ordered
         P2G, the tools, the sum of the chunks' grids and their clearing fused into the grid update, then G2P.
 
         Only the box of the particles' stencil nodes is visited; ``grid_v_out`` elsewhere is left as it
-        was (G2P reads none of it). With ``record``, the SVD and the affine matrices of frame f are kept for
-        :meth:`substep_grad`, and the box's mass and momentum in ``grid_m`` and ``grid_v_in`` for
-        :meth:`record_step`.
+        was (G2P reads none of it). With ``record``, what the adjoint of the substep needs goes straight to
+        :meth:`record_step`'s arrays: each particle's state, SVD and return mapping at frame f to
+        ``particles`` (:meth:`write_record`), the box to ``boxes[f]`` and its nodes' mass, momentum and new
+        velocity to ``grid[f]`` (GRID_CHANNELS per node, the box's nodes in C order).
         """
         for p in range(self.n):
-            self.fresh_affine(f, p, record)
+            self.fresh_affine(f, p, record, particles)
         self.particles_to_chunks(f)
         # Serial, on the launching thread: a parallel task costs a thread pool wake-up (40-90 us here).
         self.move_tools(f)
         self.find_active_box()
+        if ti.static(record):
+            for d in ti.static(range(3)):
+                boxes[f, 0, d] = self.active_lo[None][d]
+                boxes[f, 1, d] = self.active_hi[None][d]
         lo, hi = ti.static(self.active_lo, self.active_hi)
         for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
             node = self.gather_chunks(cell)
@@ -780,23 +764,30 @@ class MPMSimulator:
                 v = self.node_velocity(f, cell, node[3], ti.Vector([node[0], node[1], node[2]]))
             self.grid_v_out[cell] = v
             if ti.static(record):
-                self.grid_m[cell] = node[3]
-                self.grid_v_in[cell] = ti.Vector([node[0], node[1], node[2]])
+                start = GRID_CHANNELS * self.box_index(cell)
+                for a in ti.static(range(4)):
+                    grid[f, start + a] = node[(a + 3) % 4]  # mass, then momentum
+                for a in ti.static(range(3)):
+                    grid[f, start + 4 + a] = v[a]
         for p in range(self.n):
             self.grid_to_particle(f, p)
 
     @ti.func
-    def particle_g2p_adjoint(self, c, f, p):
+    def particle_g2p_adjoint(self, rec: ti.template(), grid: ti.template(), c, f, p):
         """Adjoint of G2P for particle p: its share of grid_v_out's adjoint into chunk c's grid; sets x[f]'s.
 
         ``g_C @ (o - fx)`` is built from ``g_C``'s columns over the integer offsets o, and the term that
         G2P's ``(o - fx)`` adds to x's adjoint is summed over the nodes once: the weighted sum of the
-        grid velocities is the new velocity ``v[f + 1]``.
+        grid velocities is the new velocity ``v[f + 1]``. The particle's states and the grid velocities come
+        from the recorded step (``rec``: its particles, ``grid``: its grids).
         """
-        base, fx, w = self.stencil(self.x[f, p])
+        x = self.recorded_vector(rec, f, p, "x")
+        base, fx, w = self.stencil(x)
+        size = self.active_hi[None] - self.active_lo[None] + 1
+        base_index = GRID_CHANNELS * self.box_index(base)
         slope = bspline_slopes(fx)
-        new_v = self.v[f + 1, p]
-        moved = self.x[f, p] + self.dt * new_v
+        new_v = self.recorded_vector(rec, f + 1, p, "v")
+        moved = x + self.dt * new_v
         free = ti.Vector([ti.select(self.x_low < moved[d] < self.x_high, 1.0, 0.0) for d in ti.static(range(3))])
         g_x_next = self.x.grad[f + 1, p] * free
         g_v = self.v.grad[f + 1, p] + self.dt * g_x_next
@@ -816,28 +807,42 @@ class MPMSimulator:
                     weight, d_weight = node_weight_and_gradient(w, slope, i, j, k, self.inv_dx)
                     g_node = weight * per_weight
                     self.add_to_chunk(c, node, ti.Vector([g_node[0], g_node[1], g_node[2], 0.0]))
-                    g_x += self.grid_v_out[node].dot(per_weight) * d_weight
+                    slot = base_index + GRID_CHANNELS * ((i * size[1] + j) * size[2] + k) + 4
+                    new_node_v = ti.Vector([grid[f, slot + a] for a in ti.static(range(3))])
+                    g_x += new_node_v.dot(per_weight) * d_weight
         self.x.grad[f, p] = g_x
 
     @ti.kernel
-    def g2p_adjoint(self, f: ti.i32):
-        """Hand-written adjoint of G2P: adjoints of x, v, C at f + 1 to grid_v_out and x at f.
+    def g2p_adjoint(self, f: ti.i32, rec: ti.types.ndarray(ndim=1), grid: ti.types.ndarray(ndim=2),
+                    boxes: ti.types.ndarray(ndim=3)):
+        """Hand-written adjoint of G2P: adjoints of x, v, C at f + 1 to grid_v_out and x at f; and the grid
+        update's input restored for its adjoint.
 
-        The grid adjoints go through the chunks' grids like P2G's mass and momentum (a fixed summation
-        order when ordered) and are summed into ``grid_v_out.grad`` on the active box of :meth:`p2g`.
+        Reads substep f of a recorded step: its particles (``rec``), grids (``grid``) and box (``boxes``),
+        as :meth:`advance` recorded them. The grid adjoints go through the chunks' grids like P2G's mass
+        and momentum (a fixed summation order when ordered) and are summed into ``grid_v_out.grad`` on the
+        box, where ``grid_m`` and ``grid_v_in`` are restored and their adjoints zeroed for ``grid_op.grad``.
         """
+        for d in ti.static(range(3)):
+            self.active_lo[None][d] = boxes[f, 0, d]
+            self.active_hi[None][d] = boxes[f, 1, d]
         if ti.static(self.serial_p2g):
             for c in range(self.p2g_chunks):
                 begin, end = self.chunk_bounds(c)
                 for p in range(begin, end):
-                    self.particle_g2p_adjoint(c, f, p)
+                    self.particle_g2p_adjoint(rec, grid, c, f, p)
         else:
             for p in range(self.n):
-                self.particle_g2p_adjoint(0, f, p)
+                self.particle_g2p_adjoint(rec, grid, 0, f, p)
         lo, hi = ti.static(self.active_lo, self.active_hi)
         for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
             total = self.gather_chunks(cell)
             self.grid_v_out.grad[cell] = ti.Vector([total[0], total[1], total[2]])
+            start = GRID_CHANNELS * self.box_index(cell)
+            self.grid_m[cell] = grid[f, start]
+            self.grid_v_in[cell] = ti.Vector([grid[f, start + 1 + a] for a in ti.static(range(3))])
+            self.grid_m.grad[cell] = 0.0
+            self.grid_v_in.grad[cell] = ti.Vector.zero(ti.f32, 3)
 
     @ti.kernel
     def copy_frame(self, src: ti.i32, dst: ti.i32):
@@ -892,6 +897,28 @@ class MPMSimulator:
             for a in ti.static(range(4)):
                 self.tool_rot[f, k][a] = rot[k, a]
             self.tool_gap[f, k] = gap[k]
+
+    @ti.kernel
+    def _copy_tools(self, tools: ti.types.ndarray(ndim=3), to_fields: ti.template()):
+        """Every frame's tool poses between the fields and ``tools`` (frames, K, 8): position, rotation
+        quaternion, gap; into the fields with ``to_fields``, else out of them."""
+        ti.loop_config(serialize=True)  # a few dozen values: cheaper than waking the thread pool
+        for f, k in ti.ndrange(self.n_frames, self.n_tools):
+            for a in ti.static(range(8)):
+                if ti.static(to_fields):
+                    if ti.static(a < 3):
+                        self.tool_pos[f, k][a] = tools[f, k, a]
+                    elif ti.static(a < 7):
+                        self.tool_rot[f, k][a - 3] = tools[f, k, a]
+                    else:
+                        self.tool_gap[f, k] = tools[f, k, a]
+                else:
+                    if ti.static(a < 3):
+                        tools[f, k, a] = self.tool_pos[f, k][a]
+                    elif ti.static(a < 7):
+                        tools[f, k, a] = self.tool_rot[f, k][a - 3]
+                    else:
+                        tools[f, k, a] = self.tool_gap[f, k]
 
     @ti.kernel
     def _read_tools(self, f: ti.i32, pos: ti.types.ndarray(), rot: ti.types.ndarray(), gap: ti.types.ndarray()):
@@ -1047,45 +1074,35 @@ class MPMSimulator:
         padded[: self.action_dim] = action
         self.action.from_numpy(padded)
 
-    def substep(self, f: int) -> None:
-        """One MPM substep from frame f to f + 1 (one kernel: :meth:`advance`)."""
-        self.advance(f, False)
-
     def substep_grad(self, f: int) -> None:
-        """Adjoint of substep f, after :meth:`run_substeps` with ``record`` (or
-        :meth:`load_recorded_step`) filled the frames.
+        """Adjoint of substep f of the step that :meth:`load_recorded_step` restored.
 
-        Restores the grid of substep f from the loaded recorded step, or recomputes it (P2G and the
-        grid update), then runs the adjoints in reverse order: G2P, the grid update, the tools, and P2G
-        with the stress, the SVD and the trial F in one kernel (:meth:`p2g_adjoint`).
+        Runs the adjoints in reverse order: G2P (which restores the grid update's input), the grid update,
+        the tools, and P2G with the stress, the SVD and the trial F in one kernel (:meth:`p2g_adjoint`).
         """
-        if self._loaded_grids is None:
-            self.p2g(f)
-            self.grid_op(f)
-        else:
-            self._load_grid(f, self._loaded_grids["grid"], self._loaded_grids["grid_boxes"])
-        self.g2p_adjoint(f)
+        if self._loaded_step is None:
+            raise RuntimeError("substep_grad needs the frames of a recorded step: call load_recorded_step first")
+        recorded = self._loaded_step
+        particles = recorded["particles"].reshape(-1)
+        self.g2p_adjoint(f, particles, recorded["grid"], recorded["grid_boxes"])
         self.grid_op.grad(f)
         self.tool_kinematics.grad(f)
-        self.p2g_adjoint(f)
+        self.p2g_adjoint(f, particles)
 
-    def run_substeps(self, action: np.ndarray, step: int | None = None, record: bool = False) -> None:
-        """Run one environment step into frames 1..substeps without wrapping back to frame 0.
-
-        With ``record`` (a differentiable simulator), every substep keeps its SVD and affine matrix, so
-        that the step's adjoint can follow (:meth:`substep_grad`).
-        """
-        self._loaded_grids = None  # the frames no longer hold a loaded recorded step
+    def run_substeps(self, action: np.ndarray, step: int | None = None) -> None:
+        """Run one environment step into frames 1..substeps without wrapping back to frame 0."""
+        self._loaded_step = None  # the frames no longer hold a loaded recorded step
         self.load_action(self.check_action(action, step))
         for f in range(self.substeps):
-            self.advance(f, record)
+            self.advance(f, False, *self._no_record)
         self.raise_if_unhealthy(self.substeps, step)
 
     def record_step(self, action: np.ndarray, step: int | None = None) -> dict[str, np.ndarray]:
-        """Run one environment step with ``record`` and return copies of all that its adjoint needs, for
-        :meth:`load_recorded_step`: particles (frames, N, RECORD_CHANNELS), each substep's grid on its
-        box (``grid``: (substeps, n_grid^3 * 7) of which the box's nodes fill the start, ``grid_boxes``:
-        (substeps, 2, 3) lowest and highest node), tool poses (frames, K, 3 / 4) and gaps (frames, K).
+        """Run one environment step and return all that its adjoint needs, for :meth:`load_recorded_step`:
+        particles (frames, N, RECORD_CHANNELS), each substep's grid on its box (``grid``: (substeps,
+        n_grid^3 * 7) of which the box's nodes fill the start, ``grid_boxes``: (substeps, 2, 3) lowest and
+        highest node) and ``tools`` (frames, K, 8): position, rotation quaternion and gap. The substeps
+        write them as they go (:meth:`advance` with ``record``).
 
         The arrays come from the buffers given back by :meth:`release_recorded_step` when there are any
         (a fresh one costs a page fault per 4 KiB on first write; the grid's untouched pages cost nothing).
@@ -1097,16 +1114,16 @@ class MPMSimulator:
         else:
             recorded = {"particles": np.empty((self.n_frames, self.n, RECORD_CHANNELS), np.float32),
                         "grid": np.empty((self.substeps, self.n_grid**3 * GRID_CHANNELS), np.float32),
-                        "grid_boxes": np.empty((self.substeps, 2, 3), np.int32)}
-        self._loaded_grids = None
+                        "grid_boxes": np.empty((self.substeps, 2, 3), np.int32),
+                        "tools": np.empty((self.n_frames, max(self.n_tools, 1), 8), np.float32)}
+        self._loaded_step = None
         self.load_action(self.check_action(action, step))
+        particles = recorded["particles"].reshape(-1)
         for f in range(self.substeps):
-            self.advance(f, True)
-            self._save_grid(f, recorded["grid"], recorded["grid_boxes"])
+            self.advance(f, True, particles, recorded["grid"], recorded["grid_boxes"])
         self.raise_if_unhealthy(self.substeps, step)
-        self._save_frames(recorded["particles"].reshape(-1))
-        recorded.update(tool_pos=self.tool_pos.to_numpy(), tool_rot=self.tool_rot.to_numpy(),
-                        tool_gap=self.tool_gap.to_numpy())
+        self._record_last_frame(particles)
+        self._copy_tools(recorded["tools"], False)
         return recorded
 
     def recorded_bytes(self, recorded: dict[str, np.ndarray]) -> int:
@@ -1116,52 +1133,16 @@ class MPMSimulator:
 
     def release_recorded_step(self, recorded: dict[str, np.ndarray]) -> None:
         """Give a recorded step's buffers back for reuse; ``recorded`` must not be used afterwards."""
-        if self._loaded_grids is recorded:
-            self._loaded_grids = None
+        if self._loaded_step is recorded:
+            self._loaded_step = None
         self._spare_records.append(recorded)
 
     def load_recorded_step(self, recorded: dict[str, np.ndarray]) -> None:
-        """Restore the frames of :meth:`record_step`, as if the step had just been run with ``record``; its
-        substeps' grids are restored by :meth:`substep_grad` until :meth:`release_recorded_step`."""
-        self._load_frames(recorded["particles"].reshape(-1))
-        self.tool_pos.from_numpy(recorded["tool_pos"])
-        self.tool_rot.from_numpy(recorded["tool_rot"])
-        self.tool_gap.from_numpy(recorded["tool_gap"])
-        self._loaded_grids = recorded
-
-    @ti.kernel
-    def _save_grid(self, f: ti.i32, out: ti.types.ndarray(ndim=2), boxes: ti.types.ndarray(ndim=3)):
-        """Substep f's box (``active_lo``, ``active_hi``) into ``boxes[f]`` and its nodes' mass, momentum
-        and new velocity into ``out[f]``, GRID_CHANNELS per node, the box's nodes in C order."""
-        for d in ti.static(range(3)):
-            boxes[f, 0, d] = self.active_lo[None][d]
-            boxes[f, 1, d] = self.active_hi[None][d]
-        lo, hi = ti.static(self.active_lo, self.active_hi)
-        ti.loop_config(serialize=True)  # a few thousand nodes: cheaper than waking the thread pool
-        for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
-            start = GRID_CHANNELS * self.box_index(cell)
-            out[f, start] = self.grid_m[cell]
-            for a in ti.static(range(3)):
-                out[f, start + 1 + a] = self.grid_v_in[cell][a]
-                out[f, start + 4 + a] = self.grid_v_out[cell][a]
-
-    @ti.kernel
-    def _load_grid(self, f: ti.i32, data: ti.types.ndarray(ndim=2), boxes: ti.types.ndarray(ndim=3)):
-        """The inverse of :meth:`_save_grid`, and zero adjoints of the three grid fields on the box: what
-        :meth:`p2g` and :meth:`grid_op` leave for the adjoint pass."""
-        for d in ti.static(range(3)):
-            self.active_lo[None][d] = boxes[f, 0, d]
-            self.active_hi[None][d] = boxes[f, 1, d]
-        lo, hi = ti.static(self.active_lo, self.active_hi)
-        ti.loop_config(serialize=True)  # a few thousand nodes: cheaper than waking the thread pool
-        for cell in ti.grouped(ti.ndrange(*[(lo[None][d], hi[None][d] + 1) for d in range(3)])):
-            start = GRID_CHANNELS * self.box_index(cell)
-            self.grid_m[cell] = data[f, start]
-            self.grid_v_in[cell] = ti.Vector([data[f, start + 1 + a] for a in ti.static(range(3))])
-            self.grid_v_out[cell] = ti.Vector([data[f, start + 4 + a] for a in ti.static(range(3))])
-            self.grid_m.grad[cell] = 0.0
-            self.grid_v_in.grad[cell] = ti.Vector.zero(ti.f32, 3)
-            self.grid_v_out.grad[cell] = ti.Vector.zero(ti.f32, 3)
+        """Make :meth:`record_step`'s step the one :meth:`substep_grad` differentiates: restore its tool poses;
+        the adjoint kernels read its particles, and restore its substeps' grids, from ``recorded`` until
+        :meth:`release_recorded_step`."""
+        self._copy_tools(recorded["tools"], True)
+        self._loaded_step = recorded
 
     @ti.func
     def box_index(self, cell):
@@ -1170,45 +1151,40 @@ class MPMSimulator:
         size = self.active_hi[None] - self.active_lo[None] + 1
         return (rel[0] * size[1] + rel[1]) * size[2] + rel[2]
 
-    @ti.kernel
-    def _save_frames(self, out: ti.types.ndarray(ndim=1)):
-        """Every frame's particles into ``out``, a flat (frames * N * RECORD_CHANNELS,) view (indexed about
-        3x faster than a 3-d array)."""
-        for f, p in ti.ndrange(self.n_frames, self.n):
-            start = (f * self.n + p) * RECORD_CHANNELS
-            x, v, C, F = self.x[f, p], self.v[f, p], self.C[f, p], self.F[f, p]
-            U, sig, V, affine = self.U[f, p], self.sig[f, p], self.V[f, p], self.affine[f, p]
+    @ti.func
+    def write_record(self, out: ti.template(), f, p, x, v, C, F, sig, s_new, eps_dev, U, V):
+        """Particle p's slot of frame f in ``out``, a flat (frames * N * RECORD_CHANNELS,) view of a recorded
+        step's particles (indexed about 3x faster than a 3-d array), laid out as ``RECORD_LAYOUT``."""
+        start = (f * self.n + p) * RECORD_CHANNELS
+        for key, value in ti.static((("x", x), ("v", v), ("sig", sig), ("sig_plastic", s_new),
+                                     ("strain_dev", eps_dev))):
             for a in ti.static(range(3)):
-                out[start + a] = x[a]
-                out[start + 3 + a] = v[a]
-                out[start + 6 + a] = sig[a, a]
-                for b in ti.static(range(3)):
-                    out[start + 9 + 3 * a + b] = C[a, b]
-                    out[start + 18 + 3 * a + b] = F[a, b]
-                    out[start + 27 + 3 * a + b] = U[a, b]
-                    out[start + 36 + 3 * a + b] = V[a, b]
-                    out[start + 45 + 3 * a + b] = affine[a, b]
+                out[start + ti.static(RECORD_LAYOUT[key]) + a] = value[a]
+        for key, value in ti.static((("C", C), ("F", F), ("U", U), ("V", V))):
+            for a, b in ti.static(ti.ndrange(3, 3)):
+                out[start + ti.static(RECORD_LAYOUT[key]) + 3 * a + b] = value[a, b]
+
+    @ti.func
+    def recorded_vector(self, rec: ti.template(), f, p, key: ti.template()):
+        """Quantity ``key`` (3,) of particle p at frame f in a recorded step (:meth:`write_record`)."""
+        start = (f * self.n + p) * RECORD_CHANNELS + ti.static(RECORD_LAYOUT[key])
+        return ti.Vector([rec[start + a] for a in ti.static(range(3))])
+
+    @ti.func
+    def recorded_matrix(self, rec: ti.template(), f, p, key: ti.template()):
+        """Quantity ``key`` (3, 3) of particle p at frame f in a recorded step (:meth:`write_record`)."""
+        start = (f * self.n + p) * RECORD_CHANNELS + ti.static(RECORD_LAYOUT[key])
+        return ti.Matrix([[rec[start + 3 * a + b] for b in ti.static(range(3))] for a in ti.static(range(3))])
 
     @ti.kernel
-    def _load_frames(self, data: ti.types.ndarray(ndim=1)):
-        """The inverse of :meth:`_save_frames`."""
-        for f, p in ti.ndrange(self.n_frames, self.n):
-            start = (f * self.n + p) * RECORD_CHANNELS
-            x, v = ti.Vector.zero(ti.f32, 3), ti.Vector.zero(ti.f32, 3)
-            C, F, U = ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3)
-            sig, V, affine = ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3), ti.Matrix.zero(ti.f32, 3, 3)
-            for a in ti.static(range(3)):
-                x[a] = data[start + a]
-                v[a] = data[start + 3 + a]
-                sig[a, a] = data[start + 6 + a]
-                for b in ti.static(range(3)):
-                    C[a, b] = data[start + 9 + 3 * a + b]
-                    F[a, b] = data[start + 18 + 3 * a + b]
-                    U[a, b] = data[start + 27 + 3 * a + b]
-                    V[a, b] = data[start + 36 + 3 * a + b]
-                    affine[a, b] = data[start + 45 + 3 * a + b]
-            self.x[f, p], self.v[f, p], self.C[f, p], self.F[f, p] = x, v, C, F
-            self.U[f, p], self.sig[f, p], self.V[f, p], self.affine[f, p] = U, sig, V, affine
+    def _record_last_frame(self, out: ti.types.ndarray(ndim=1)):
+        """The step's last frame's particles into ``out`` (:meth:`write_record`), zero SVD and return
+        mapping: no substep starts from that frame."""
+        f = self.substeps
+        for p in range(self.n):
+            zero, none = ti.Vector.zero(ti.f32, 3), ti.Matrix.zero(ti.f32, 3, 3)
+            self.write_record(out, f, p, self.x[f, p], self.v[f, p], self.C[f, p], self.F[f, p],
+                              zero, zero, zero, none, none)
 
     def step(self, action: np.ndarray, step: int | None = None) -> None:
         """Advance one environment step under ``action`` (A,) in [-1, 1]."""
@@ -1217,7 +1193,7 @@ class MPMSimulator:
 
     def raise_if_unhealthy(self, frame: int, step: int | None) -> None:
         self.measure_health(frame)
-        total, speed = float(self.health[0]), float(self.health[1])
+        total, speed = (float(value) for value in self.health.to_numpy())
         where = "" if step is None else f" at step {step}"
         if not math.isfinite(total):
             raise SimulationError(f"simulation blew up{where}: particle state holds non-finite values ({total})")

@@ -12,7 +12,7 @@ import torch
 
 from pasta.config.schema import MaterialConfig, SimConfig, ToolConfig
 from pasta.sim.autodiff import backpropagate_episode, differentiable_episode, simulate_episode
-from pasta.sim.engine import simulator_for
+from pasta.sim.engine import GRID_CHANNELS, RECORD_CHANNELS, simulator_for
 
 N_PARTICLES = 300
 SIM = SimConfig(n_grid=16, dt_s=4e-4, substeps_per_step=5, n_particles=N_PARTICLES, gravity_m_s2=(0, -600, 0),
@@ -144,13 +144,36 @@ def gradients(sim, seed: int, memory_bytes: int) -> tuple[np.ndarray, np.ndarray
 def test_kept_substeps_give_the_gradients_of_recomputed_ones(sim):
     """Restoring a step's recorded substep frames gives the adjoints of recomputing them: those of x0 bit
     for bit, those of the actions up to the float atomics of the grid update's adjoint (equal in practice)."""
-    particles = 4 * (SIM.substeps_per_step + 1) * N_PARTICLES * 54  # a kept step's particles; its grids add less
+    # A kept step's particles; its grids add less.
+    particles = 4 * (SIM.substeps_per_step + 1) * N_PARTICLES * RECORD_CHANNELS
     recomputed_a, recomputed_x, none_kept = gradients(sim, 2, 0)
     for memory, expected_kept in ((3 * particles // 2, 1), (5 * particles // 2, 2), (1 << 30, 3)):
         kept_a, kept_x, kept = gradients(sim, 2, memory)
         assert (none_kept, kept) == (0, expected_kept)
         np.testing.assert_array_equal(kept_x, recomputed_x)
         np.testing.assert_allclose(kept_a, recomputed_a, rtol=1e-5, atol=1e-6 * np.abs(recomputed_a).max())
+
+
+def test_every_recorded_grid_holds_the_whole_mass(sim):
+    """P2G puts exactly n * p_vol * density on the grid in every substep of a pressing episode: the grids
+    that record_step keeps for the adjoint pass (mass first of GRID_CHANNELS per node of the box)."""
+    density = 1.7
+    sim.set_material(MATERIAL.model_copy(update={"density": density}))
+    try:
+        state0, actions, _, _ = make_problem(0)
+        sim.set_state(state0)
+        expected = N_PARTICLES * sim.p_vol * density
+        for step, action in enumerate(actions.numpy()):
+            recorded = sim.record_step(action, step=step)
+            sizes = recorded["grid_boxes"][:, 1] - recorded["grid_boxes"][:, 0] + 1
+            for f, size in enumerate(sizes):
+                mass = recorded["grid"][f, : GRID_CHANNELS * int(np.prod(size))][::GRID_CHANNELS].astype(np.float64)
+                assert mass.min() >= 0.0
+                assert mass.sum() == pytest.approx(expected, rel=1e-5), f"step {step}, substep {f}"
+            sim.release_recorded_step(recorded)
+            sim.copy_frame(sim.substeps, 0)
+    finally:
+        sim.set_material(MATERIAL)
 
 
 def test_simulate_episode_keeps_one_checkpoint_per_step(sim):
