@@ -26,8 +26,8 @@ class Episode:
 
     ``x``, ``v``: (T + 1, N, 3); ``tool_pos``: (T + 1, K, 3); ``tool_rot``: (T + 1, K, 4);
     ``tool_gap``: (T + 1, K). ``checkpoints[t]`` is the full state before step t; ``recorded[t]``
-    its substep frames (``MPMSimulator.record_step``), or None where the backward pass
-    recomputes them.
+    its record (``MPMSimulator.record_step``), or None where the backward pass records
+    the step anew.
     """
 
     x: np.ndarray

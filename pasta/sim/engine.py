@@ -8,10 +8,11 @@ Coulomb friction and optional soft contact.
 
 Layout. The simulator holds one environment step: ``substeps + 1`` frames of
 particle state ``x, v, C, F`` and tool poses. ``step`` runs the substeps and
-moves the last frame back to frame 0. Reverse mode recomputes one environment
-step from its checkpoint and runs the Taichi adjoint kernels substep by
-substep, so memory does not grow with the episode length (see
-``pasta.sim.autodiff``).
+moves the last frame back to frame 0; ``record_step`` also writes what the
+step's adjoint needs into host arrays. Reverse mode differentiates one
+environment step at a time from its record (kept from the forward pass while
+memory allows, else recorded anew from the step's checkpoint), substep by
+substep (see ``pasta.sim.autodiff``).
 
 Compile-time values: grid size, particle count, dt and the kinds of tools.
 Runtime values (no recompile): material, gravity, ground friction, contact
@@ -153,8 +154,8 @@ class MPMSimulator:
         self.tool_kinds = layout.tool_kinds
         self.n_tools = len(layout.tool_kinds)
         self.differentiable = layout.differentiable
-        # Host memory a differentiable episode may keep so that its backward pass need not recompute
-        # the substeps (pasta.sim.autodiff; SimConfig.adjoint_memory_mb, set by simulator_for).
+        # Host memory a differentiable episode may keep so that its backward pass need not record the steps
+        # anew (pasta.sim.autodiff; SimConfig.adjoint_memory_mb, set by simulator_for).
         self.adjoint_memory_bytes = 0
         self._spare_records: list[dict[str, np.ndarray]] = []  # buffers of released recorded steps
         # What advance writes to when it records nothing (its record arguments must still be arrays).
