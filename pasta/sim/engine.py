@@ -644,19 +644,17 @@ class MPMSimulator:
     @ti.func
     def collide(self, f, k: ti.template(), finger: ti.template(), node, v):
         """Project the grid velocity ``v`` at world point ``node`` against tool k."""
+        R0 = quat_to_matrix(self.tool_rot[f, k])
+        local = R0.transpose() @ (node - self.tool_pos[f, k])
+        gap0 = self.tool_gap[f, k]
+        sdf, normal_local = self.local_sdf_normal(k, finger, local, gap0)
         softness = self.softness[None]
-        probe = quat_to_matrix(self.tool_rot[f, k]).transpose() @ (node - self.tool_pos[f, k])
-        sdf_probe, _ = self.local_sdf_normal(k, finger, probe, self.tool_gap[f, k])
-        in_contact = sdf_probe <= 0.0 or (softness > 0.0 and ti.exp(-sdf_probe * softness) > SOFT_CONTACT_CUTOFF)
+        influence = ti.min(ti.exp(-sdf * softness), 1.0)
+        in_contact = sdf <= 0.0 or (softness > 0.0 and influence > SOFT_CONTACT_CUTOFF)
         result = v
         # A branch, not a select: the adjoint pass then skips the tool's terms at nodes out of contact.
         if in_contact:
-            R0 = quat_to_matrix(self.tool_rot[f, k])
-            local = R0.transpose() @ (node - self.tool_pos[f, k])
-            gap0 = self.tool_gap[f, k]
-            sdf, normal_local = self.local_sdf_normal(k, finger, local, gap0)
             normal = R0 @ normal_local
-            influence = ti.min(ti.exp(-sdf * softness), 1.0)
             # Rigid velocity of the tool's material point at this node, including the gap motion.
             finger_shift0 = ti.Vector.zero(ti.f32, 3)
             finger_shift1 = ti.Vector.zero(ti.f32, 3)
@@ -905,21 +903,17 @@ class MPMSimulator:
         quaternion, gap; into the fields with ``to_fields``, else out of them."""
         ti.loop_config(serialize=True)  # a few dozen values: cheaper than waking the thread pool
         for f, k in ti.ndrange(self.n_frames, self.n_tools):
-            for a in ti.static(range(8)):
-                if ti.static(to_fields):
-                    if ti.static(a < 3):
-                        self.tool_pos[f, k][a] = tools[f, k, a]
-                    elif ti.static(a < 7):
-                        self.tool_rot[f, k][a - 3] = tools[f, k, a]
-                    else:
-                        self.tool_gap[f, k] = tools[f, k, a]
-                else:
-                    if ti.static(a < 3):
-                        tools[f, k, a] = self.tool_pos[f, k][a]
-                    elif ti.static(a < 7):
-                        tools[f, k, a] = self.tool_rot[f, k][a - 3]
-                    else:
-                        tools[f, k, a] = self.tool_gap[f, k]
+            if ti.static(to_fields):
+                self.tool_pos[f, k] = ti.Vector([tools[f, k, a] for a in ti.static(range(3))])
+                self.tool_rot[f, k] = ti.Vector([tools[f, k, 3 + a] for a in ti.static(range(4))])
+                self.tool_gap[f, k] = tools[f, k, 7]
+            else:
+                pos, rot = self.tool_pos[f, k], self.tool_rot[f, k]
+                for a in ti.static(range(3)):
+                    tools[f, k, a] = pos[a]
+                for a in ti.static(range(4)):
+                    tools[f, k, 3 + a] = rot[a]
+                tools[f, k, 7] = self.tool_gap[f, k]
 
     @ti.kernel
     def _read_tools(self, f: ti.i32, pos: ti.types.ndarray(), rot: ti.types.ndarray(), gap: ti.types.ndarray()):
