@@ -230,6 +230,10 @@ class DataConfig(Frozen):
     # evaluation alike: "centre" over the attended dough's centre of mass (the official reset pose); "cut"
     # over the subgoal's split, so the skill, scripted or learned, starts by going down.
     knife_start: Literal["centre", "cut"] = "centre"
+    # Rollouts of each scripted demonstration's aim search (pasta.data.aim_search): the skill is run with up
+    # to this many aims of its destination from the same state, and the one ending nearest its subgoal is
+    # recorded. 1: the script alone, as the official heuristics.
+    aim_search_rollouts: int = Field(default=1, ge=1)
 
 
 class TrainConfig(Frozen):
@@ -360,6 +364,10 @@ class EvalConfig(Frozen):
     # Skills the policy executor leaves to the scripted skills (a diagnostic: with the oracle plan, which
     # skill's policy loses the score); empty: every skill runs its policy.
     scripted_skills: tuple[str, ...] = ()
+    # Rollouts of each scripted skill's aim search when the scripted skills execute a plan (pasta.data.aim_search;
+    # with the oracle plan each rollout is followed by the plan's remaining skills and scored on the goal).
+    # 1: the scripts alone.
+    aim_search_rollouts: int = Field(default=1, ge=1)
 
 
 class TaskConfig(Frozen):

@@ -14,9 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from pasta.config.schema import DEMO_METHODS, TaskConfig
+from pasta.data.aim_search import search_aim
 from pasta.data.configurations import SkillProblem
 from pasta.data.gbto import GBTOSettings, optimise_actions
-from pasta.data.skills import place_tool_for_skill, scripted_actions
+from pasta.data.skills import Aim, place_tool_for_skill, scripted_actions
 from pasta.data.storage import validate_trajectory, write_trajectory
 from pasta.geometry.distances import earth_movers_distance, normalised_performance
 from pasta.geometry.entities import label_entities
@@ -107,10 +108,15 @@ def generate_demo(cfg: TaskConfig, problem: SkillProblem, trajectory_id: int, me
     env.reset(problem.initial)
     env.settle(cfg.sim.settle_steps)
     mask = attention_mask(env.observation().dough_points, problem.attention, cfg)
-    place_tool_for_skill(env, problem.skill, mask, target)
+    aim = None
+    if cfg.data.aim_search_rollouts > 1:
+        settled = env.get_state()
+        aim = search_aim(env, problem.skill, target, mask, cfg.data.aim_search_rollouts, settle_steps=0).aim
+        env.set_state(settled)
+    place_tool_for_skill(env, problem.skill, mask, target, aim)
     start_state = env.get_state()
     emd_initial = shape_distance(env.observation().dough_points, target, seed)
-    warm_start = scripted_actions(env, problem.skill, target, mask, n_steps)
+    warm_start = scripted_actions(env, problem.skill, target, mask, n_steps, aim)
     env.set_state(start_state)
 
     scripted = record(env, warm_start, cfg)
@@ -145,6 +151,7 @@ def generate_demo(cfg: TaskConfig, problem: SkillProblem, trajectory_id: int, me
         "emd_initial": emd_initial, "emd_final": emd_final, "normalised_performance": performance,
         "scripted_normalised_performance": scripted_perf, "gbto_normalised_performance": optimised_perf,
         "gbto_losses": list(losses), "seed": seed,
+        "aim_shift": list((aim or Aim()).shift), "aim_scale": list((aim or Aim()).scale),
     }
     write_trajectory(path, arrays, metadata)
     return DemoResult(path, trajectory_id, problem.config_id, problem.skill, method, emd_initial, emd_final,

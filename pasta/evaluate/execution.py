@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from pasta.config.schema import TaskConfig
+from pasta.data.aim_search import Rest, search_aim
 from pasta.data.configurations import tool_clearance
 from pasta.data.skills import place_tool_for_skill, scripted_actions, skill_tool
 from pasta.evaluate.chunk_ensemble import ChunkEnsemble
@@ -183,7 +184,7 @@ def _run_policy_ensembled(env: DoughEnv, bundle: TrainedModels, skill: str, tool
 
 def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step: int, mask: np.ndarray,
               target: np.ndarray, executor: str, goal_points: np.ndarray, goal_latents: torch.Tensor | None,
-              rng: np.random.Generator) -> str | None:
+              rng: np.random.Generator, rest: Rest | None = None) -> str | None:
     """One plan step in the simulator: place the skill's tool by the attended dough, act for the skill's budget
     (scripted toward ``target``, or the policy toward the new subgoals), settle. The tool is left where it is.
 
@@ -192,6 +193,8 @@ def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step
         target: ``(Q, 3)`` the whole scene after the skill (the scripted skills' subgoal).
         goal_points: ``(N_g, 3)`` the new subgoals stacked, and ``goal_latents`` ``(N_out, D_z + 3)`` their
             latents: what the policy sees (unused by the scripted skills; ``bundle`` may then be None).
+        rest: the plan's remaining skills, scripted, for a scripted skill's aim search
+            (``eval.aim_search_rollouts`` > 1; :func:`pasta.data.aim_search.search_aim`).
 
     Returns:
         None, or why the simulation blew up (step and value); the state before the skill is then restored.
@@ -199,8 +202,12 @@ def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step
     cfg = env.cfg
     before_skill = env.get_state()
     try:
+        scripted = executor == "scripted" or skill in cfg.eval.scripted_skills
+        if scripted and cfg.eval.aim_search_rollouts > 1:
+            search_aim(env, skill, target, mask, cfg.eval.aim_search_rollouts, cfg.sim.settle_steps, rest)
+            return None  # the environment is at the end of the best rollout, settled
         place_tool_for_skill(env, skill, mask, target)
-        if executor == "scripted" or skill in cfg.eval.scripted_skills:
+        if scripted:
             for action in scripted_actions(env, skill, target, mask):
                 env.step(action)
         else:

@@ -26,8 +26,9 @@ import numpy as np
 import torch
 
 from pasta.config.schema import TaskConfig
+from pasta.data.aim_search import Rest
 from pasta.data.configurations import OracleStep
-from pasta.data.skills import skill_tool
+from pasta.data.skills import place_tool_for_skill, scripted_actions, skill_tool
 from pasta.evaluate.encoding import encode_scene, segment
 from pasta.evaluate.execution import Execution, StepRecord, check_executor, park_tool, run_skill
 from pasta.sim.envs.base import DoughEnv
@@ -107,6 +108,27 @@ def oracle_step_inputs(cfg: TaskConfig, env: DoughEnv, step: OracleStep, bundle:
     return OracleStepInputs(attended, np.isin(labels, attended), subgoal, new_points, goal_points, goal_latents)
 
 
+def scripted_rest(cfg: TaskConfig, skill: str, steps: Sequence[OracleStep], goal: np.ndarray) -> Rest:
+    """The chain's remaining ``steps`` executed by the scripts alone, after ``skill``'s tool is parked, as an aim
+    search's ``rest`` (:func:`pasta.data.aim_search.search_aim`): returns the final observed dough and ``goal``
+    (``(P, 3)``, the chain's last subgoal)."""
+    m = cfg.sim.observation_points
+    final_goal = np.asarray(goal[:m], np.float64)
+
+    def rest(env: DoughEnv) -> tuple[np.ndarray, np.ndarray]:
+        park_tool(env, skill_tool(cfg, skill).name)
+        for step in steps:
+            inputs = oracle_step_inputs(cfg, env, step, None, np.random.default_rng(0))
+            place_tool_for_skill(env, step.skill, inputs.mask, inputs.subgoal)
+            for action in scripted_actions(env, step.skill, inputs.subgoal, inputs.mask):
+                env.step(action)
+            env.settle(cfg.sim.settle_steps)
+            park_tool(env, skill_tool(cfg, step.skill).name)
+        return np.asarray(env.observation().dough_points), final_goal
+
+    return rest
+
+
 def execute_oracle(cfg: TaskConfig, env: DoughEnv, chain: Sequence[OracleStep], executor: str,
                    bundle: TrainedModels | None, rng: np.random.Generator) -> OracleExecution:
     """Execute the ground-truth ``chain`` from the environment's current (settled) state.
@@ -121,8 +143,9 @@ def execute_oracle(cfg: TaskConfig, env: DoughEnv, chain: Sequence[OracleStep], 
     for h, step in enumerate(chain, start=1):
         inputs = oracle_step_inputs(cfg, env, step, bundle if executor == "policy" else None, rng)
         attention.append(inputs.attended)
+        rest = scripted_rest(cfg, step.skill, chain[h:], chain[-1].subgoal) if h < len(chain) else None
         failure = run_skill(env, bundle, step.skill, h, inputs.mask, inputs.subgoal, executor, inputs.goal_points,
-                            inputs.goal_latents, rng)
+                            inputs.goal_latents, rng, rest)
         if failure is not None:
             return OracleExecution(Execution(tuple(records), env.observation(), failure), tuple(attention))
         tool = skill_tool(cfg, step.skill).name

@@ -52,3 +52,29 @@ def test_unknown_plan_source_is_refused_by_name(cfg):
     with pytest.raises(ValueError, match="'dream'"):
         evaluate_problem(load("CutRearrange", "smoke", list(FAST)), None, evaluation_problem(cfg, 0), 0, "scripted",
                          PlanSettings.from_config(cfg), "dream")
+
+
+def test_an_aim_searched_oracle_scores_each_aim_on_the_goal_and_ends_no_worse_than_the_scripts(cfg, monkeypatch):
+    import pasta.evaluate.execution as execution
+
+    problem = evaluation_problem(cfg, 0)
+    alone = evaluate_problem(cfg, None, problem, 0, "scripted", PlanSettings.from_config(cfg), "oracle")
+    searched_cfg = load("CutRearrange", "smoke", [*FAST, "eval.aim_search_rollouts=3"])
+    searches = []
+    real_search = execution.search_aim
+
+    def recording_search(env, skill, target, mask, budget, settle_steps, rest=None):
+        result = real_search(env, skill, target, mask, budget, settle_steps, rest)
+        searches.append((skill, budget, rest is not None, result))
+        return result
+
+    monkeypatch.setattr(execution, "search_aim", recording_search)
+    searched = evaluate_problem(searched_cfg, None, problem, 0, "scripted", PlanSettings.from_config(searched_cfg),
+                                "oracle")
+    assert searched.failure is None
+    # Every skill but the last is scored after the chain's remaining skills; the last on the goal itself.
+    assert [(s, b, r) for s, b, r, _ in searches] == [("cut", 3, True), ("rearrange", 3, True),
+                                                     ("rearrange", 3, False)]
+    # The first search's identity rollout is the scripts' whole chain, so it scores their final EMD.
+    assert searches[0][3].emd_identity == pytest.approx(alone.emd_final, rel=0.02)
+    assert searched.emd_final <= alone.emd_final * 1.02

@@ -83,6 +83,7 @@ from collections.abc import Callable
 import numpy as np
 
 from pasta.config.schema import TaskConfig, ToolConfig
+from pasta.data.skills.aim import Aim
 from pasta.data.skills.cut import cut, cut_start
 from pasta.data.skills.gripper import gather, gripper_start, rearrange
 from pasta.data.skills.motion import Motion
@@ -94,6 +95,7 @@ from pasta.sim.envs.base import DoughEnv, ToolPose
 
 __all__ = [
     "SKILL_TOOL_KINDS",
+    "Aim",
     "available_skills",
     "place_tool_for_skill",
     "scripted_actions",
@@ -134,7 +136,7 @@ def skill_tool(cfg: TaskConfig, skill: str) -> ToolConfig:
 
 
 def start_pose_for_skill(env: DoughEnv, skill: str, attention: np.ndarray | None = None,
-                         target_points: np.ndarray | None = None) -> ToolPose:
+                         target_points: np.ndarray | None = None, aim: Aim | None = None) -> ToolPose:
     """Where :func:`place_tool_for_skill` puts the skill's tool (nothing is changed).
 
     ============ =========================================================================
@@ -154,15 +156,16 @@ def start_pose_for_skill(env: DoughEnv, skill: str, attention: np.ndarray | None
     ============ =========================================================================
 
     A pose whose tool would intersect dough it should not touch is moved away (the pusher further
-    back, the gripper and spatula up above the dough).
+    back, the gripper and spatula up above the dough). With an ``aim``, the pose is the one for the
+    destination the aim makes of the subgoal's (:class:`~pasta.data.skills.aim.Aim`).
     """
     skill_cfg = skill_config(env.cfg, skill)
-    scene = analyse(env, skill_cfg, target_points, attention)
+    scene = analyse(env, skill_cfg, target_points, attention).aimed(aim)
     return _START_POSES[skill_cfg.name](env, skill_cfg.tool, scene)
 
 
 def place_tool_for_skill(env: DoughEnv, skill: str, attention: np.ndarray | None = None,
-                         target_points: np.ndarray | None = None) -> ToolPose:
+                         target_points: np.ndarray | None = None, aim: Aim | None = None) -> ToolPose:
     """Teleport the skill's tool to its start pose (:func:`start_pose_for_skill`); returns the pose.
 
     Run it after the dough has settled and before :func:`scripted_actions`, whose first motions
@@ -176,13 +179,13 @@ def place_tool_for_skill(env: DoughEnv, skill: str, attention: np.ndarray | None
     0.88 placed vs -0.02 to 0.58 not placed, rearrange 0.90 vs 0.56).
     """
     skill_cfg = skill_config(env.cfg, skill)
-    pose = start_pose_for_skill(env, skill, attention, target_points)
+    pose = start_pose_for_skill(env, skill, attention, target_points, aim)
     env.teleport_tool(skill_cfg.tool, pose.pos, pose.rot, pose.gap)
     return env.tool_poses()[skill_cfg.tool]
 
 
 def scripted_actions(env: DoughEnv, skill: str, target_points: np.ndarray, attention: np.ndarray | None = None,
-                     n_steps: int | None = None) -> np.ndarray:
+                     n_steps: int | None = None, aim: Aim | None = None) -> np.ndarray:
     """Open-loop actions of one scripted skill, from the environment's current state.
 
     Args:
@@ -193,6 +196,8 @@ def scripted_actions(env: DoughEnv, skill: str, target_points: np.ndarray, atten
             (``N`` = ``cfg.sim.n_particles``, or ``cfg.sim.observation_points`` for a mask over the
             observation's dough points); ``None`` acts on all dough.
         n_steps: sequence length (default ``cfg.sim.steps_per_skill``).
+        aim: where the skill is told its destination is, relative to the subgoal's (None: the
+            subgoal's own; :class:`~pasta.data.skills.aim.Aim`).
 
     Returns:
         ``(n_steps, env.action_dim)`` float32 in [-1, 1]; only the skill's tool slice is non-zero.
@@ -203,7 +208,7 @@ def scripted_actions(env: DoughEnv, skill: str, target_points: np.ndarray, atten
     if n < 1:
         raise ValueError(f"n_steps must be >= 1, got {n_steps}")
     target = as_cloud(target_points, "target_points")
-    scene = analyse(env, skill_cfg, target, attention)
+    scene = analyse(env, skill_cfg, target, attention).aimed(aim)
     motion = Motion(env, skill_cfg.tool, n)
     _SCRIPTS[skill_cfg.name](env, motion, scene)
     actions = np.zeros((n, env.action_dim), np.float32)

@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from pasta.config.schema import SkillConfig, TaskConfig, ToolConfig
+from pasta.data.skills.aim import Aim
 from pasta.geometry.entities import label_entities, split_entities
 from pasta.sim.envs.base import DoughEnv, ToolPose
 from pasta.sim.quaternion import quat_to_matrix_np
@@ -160,6 +161,12 @@ class Scene:
     def destination(self) -> np.ndarray | None:
         """All destination pieces as one cloud."""
         return np.concatenate(self.destinations) if self.destinations else None
+
+    def aimed(self, aim: Aim | None) -> Scene:
+        """The scene with its destination pieces moved by ``aim`` (the same scene without one)."""
+        if aim is None or aim.is_identity:
+            return self
+        return replace(self, destinations=aim.apply(self.destinations))
 
 
 def analyse(env: DoughEnv, skill: SkillConfig, target: np.ndarray | None, attention) -> Scene:
