@@ -308,6 +308,9 @@ class PlanConfig(Frozen):
     # distance between the entities' decoded clouds, on cost_points points each (pasta.plan.decoded_cost).
     cost: Literal[PLAN_COSTS] = "learned"
     cost_points: int = Field(default=64, ge=1)
+    # Weight of the set cost in the objective; None: the official code's (10 for CutRearrange, 100 otherwise,
+    # model_spec §5.4).
+    alpha: float | None = Field(default=None, ge=0)
 
 
 class PolicyNetConfig(Frozen):

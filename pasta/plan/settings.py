@@ -72,9 +72,11 @@ class PlanSettings:
     @classmethod
     def from_config(cls, cfg: TaskConfig, *, halving: tuple[float, ...] = DEFAULT_HALVING, seed: int = 0
                     ) -> PlanSettings:
-        """Table 3's lr, iterations, samples and ``cfg.plan``'s cost; alpha 10 for CutRearrange, 100 otherwise."""
+        """Table 3's lr, iterations, samples and ``cfg.plan``'s cost; ``cfg.plan.alpha``, by default the official
+        code's 10 for CutRearrange and 100 otherwise."""
+        alpha = cfg.plan.alpha if cfg.plan.alpha is not None else 10.0 if cfg.task == "CutRearrange" else 100.0
         return cls(lr=cfg.plan.lr, iterations=cfg.plan.iterations, samples=cfg.plan.samples,
-                   alpha=10.0 if cfg.task == "CutRearrange" else 100.0, seed=seed, halving=halving,
+                   alpha=alpha, seed=seed, halving=halving,
                    cost=cfg.plan.cost, cost_points=cfg.plan.cost_points)
 
     def halving_iterations(self) -> frozenset[int]:

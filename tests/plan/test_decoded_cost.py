@@ -10,7 +10,7 @@ import torch
 from pasta.config import load
 from pasta.models.latent_prior import LatentPrior
 from pasta.models.vae import PointCloudVAE, VAEConfig
-from pasta.plan import PlanSettings, bundle_functions, plan
+from pasta.plan import PlanningFunctions, PlanSettings, SkillSpec, bundle_functions, plan, plan_with
 from pasta.plan.decoded_cost import decoded_chamfer_cost, subset_decoder
 from pasta.train import untrained
 
@@ -101,3 +101,32 @@ def test_decoded_cost_plans_the_same_on_cuda():
     on_gpu = plan(bundle, obs, goal, 3, settings, device="cuda")
     assert on_gpu.skills == on_cpu.skills
     assert on_gpu.score == pytest.approx(on_cpu.score, abs=1e-3)
+
+
+def test_decoded_cost_keeps_planned_latents_where_a_regression_is_exploited():
+    """A cost regression fitted on ``|z| <= 2`` may extrapolate below its target beyond that range; the
+    planner then lands there, where the cost is (clamped) 0. The decoded cost has no such region."""
+    vae = _vae()
+    decoded = decoded_chamfer_cost(vae, 40)
+    fitted_radius = 2.0
+
+    def regression_like(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        """Exact inside ``|z_a| <= 2``, falling linearly outside it."""
+        return decoded(a, b) - 0.1 * (a[..., :2].norm(dim=-1) - fitted_radius).clamp_min(0.0)
+
+    skills = (SkillSpec("shape", 1, 1),)
+    prior = LatentPrior(2, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+
+    def feasible(skill: int, inputs: torch.Tensor, outputs: torch.Tensor) -> torch.Tensor:
+        return torch.ones(inputs.shape[0])
+
+    obs = torch.tensor([[0.0, 0.0, 0.0, 0.0, 0.0]])
+    goal = torch.tensor([[0.5, -0.5, 0.0, 0.0, 0.0]])
+    settings = PlanSettings(lr=0.05, iterations=100, samples=64, alpha=1000.0, seed=0, halving=())
+    planned = {}
+    for name, cost in (("regression", regression_like), ("decoded", decoded)):
+        result = plan_with(PlanningFunctions(skills, prior, feasible, cost), obs, goal, 1, settings)
+        planned[name] = result.latent_sets[-1][0, :2]
+    assert planned["regression"].norm() > fitted_radius + 0.5
+    assert planned["decoded"].norm() < fitted_radius
+    assert (planned["decoded"] - goal[0, :2]).norm() < 0.2

@@ -5,6 +5,7 @@ import dataclasses
 import pytest
 import torch
 
+from pasta.config import load
 from pasta.plan import DEFAULT_HALVING, PlanSettings, enumerate_sequences, plan_with
 from pasta.plan.optimiser import optimise
 from tests.plan.analytic import BEST_SKILLS, FUNCTIONS, GOAL, OBS
@@ -103,3 +104,11 @@ def test_halving_drops_the_worse_half_at_the_listed_iterations():
     floor = dataclasses.replace(settings, min_survivors=60)
     kept = optimise(FUNCTIONS, OBS, GOAL, sequences, floor, torch.Generator().manual_seed(0), torch.device("cpu"))
     assert kept.sample_iterations == 2 * 96 + 8 * 60
+
+
+def test_alpha_comes_from_the_config_or_the_official_default():
+    assert PlanSettings.from_config(load("CutRearrange", "smoke", [])).alpha == 10.0
+    assert PlanSettings.from_config(load("CRS", "smoke", [])).alpha == 100.0
+    assert PlanSettings.from_config(load("CRS", "smoke", ["plan.alpha=1000"])).alpha == 1000.0
+    with pytest.raises(ValueError, match="alpha"):
+        load("CRS", "smoke", ["plan.alpha=-1"])
