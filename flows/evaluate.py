@@ -191,7 +191,7 @@ def evaluation_text(summary: dict) -> str:
 
 def run(task_name: str, profile: str = "smoke", variant: str = "pasta", seeds: Sequence[int] | None = None,
         executor: str = "policy", overrides: Sequence[str] = (), experiment: str | None = None, workers: int = 1,
-        dask_address: str | None = None, plan_source: str = "learned") -> dict:
+        dask_address: str | None = None, plan_source: str = "learned", sweep_value: str | None = None) -> dict:
     """The CLI's entry point: check the arguments, then run :func:`evaluate`."""
     check_executor(executor)
     check_plan_source(plan_source)
@@ -199,7 +199,7 @@ def run(task_name: str, profile: str = "smoke", variant: str = "pasta", seeds: S
     load(task_name, profile, list(overrides))  # refuse a bad task/profile/override before starting Prefect
     return evaluate(task_name, profile, variant, seeds=None if seeds is None else list(seeds), executor=executor,
                     experiment=experiment, overrides=tuple(overrides), workers=workers, dask_address=dask_address,
-                    plan_source=plan_source)
+                    plan_source=plan_source, sweep_value=sweep_value)
 
 
 if __name__ == "__main__":  # one configuration in this process's main thread (see evaluate_configuration_apart)

@@ -127,7 +127,8 @@ def train(task_name: str, profile: str = "smoke", variant: str = "pasta", method
     key = vae_key(cfg, folder, whole_scene, sizes, seed)
     vae_folder = checkpoint_dir(cfg.task, profile, f"{vae_file_name(whole_scene)}-{key}")
     variant_folder = checkpoint_dir(cfg.task, profile, variant)
-    progress_file = variant_folder / f"training-{_digest(key, tracking.config_hash(cfg), sizes, seed)}.pt"
+    training_hash = tracking.config_hash(cfg, without=tracking.TRAINING_IRRELEVANT)
+    progress_file = variant_folder / f"training-{_digest(key, training_hash, sizes, seed)}.pt"
     logger = EpochLogger()
     bars = epoch_bars(cfg, variant, logger)
     with tracking.run(cfg.task, "train", profile=profile, variant=variant, seed=seed, cfg=cfg,

@@ -181,7 +181,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         evaluate_flow = importlib.import_module("flows.evaluate")
         summary = evaluate_flow.run(args.task, profile=args.profile, variant=args.variant, seeds=args.seeds,
                                     executor=args.executor, overrides=args.set, experiment=args.experiment,
-                                    workers=args.workers, dask_address=args.dask_address, plan_source=args.plan)
+                                    workers=args.workers, dask_address=args.dask_address, plan_source=args.plan,
+                                    sweep_value=args.sweep_value)
     print(json.dumps(summary, indent=1))
     print(json.dumps(evaluation_line(summary)))  # the last line, for scripts
     return 0
@@ -307,6 +308,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--seeds", type=seed_int, nargs="+", default=None, help="seeds (default: cfg.eval.seeds)")
     evaluate.add_argument("--experiment", default=None,
                           help="pasta.experiment tag (default main, or oracle_plan with --plan oracle)")
+    evaluate.add_argument("--sweep-value", default=None,
+                          help="pasta.sweep_value tag: the run's point on a sweep (e.g. the demonstrations behind "
+                               "the models of the sweep_data experiment, docs/planning.md)")
     _add_worker_options(evaluate, workers=1)
     evaluate.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="config override")
     evaluate.set_defaults(func=_cmd_evaluate)

@@ -126,9 +126,15 @@ def git_commit() -> str:
         return "unknown"
 
 
-def config_hash(cfg: TaskConfig) -> str:
-    """A short, stable digest of the resolved config: runs with equal hashes ran the same settings."""
-    text = json.dumps(cfg.model_dump(mode="json"), sort_keys=True)
+# Config sections that training never reads: changing them keeps a training run's progress (flows/train.py).
+TRAINING_IRRELEVANT = ("plan", "eval")
+
+
+def config_hash(cfg: TaskConfig, *, without: tuple[str, ...] = ()) -> str:
+    """A short, stable digest of the resolved config: runs with equal hashes ran the same settings.
+
+    ``without`` leaves out top-level sections, e.g. ``TRAINING_IRRELEVANT`` for what training reads."""
+    text = json.dumps(cfg.model_dump(mode="json", exclude=set(without)), sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

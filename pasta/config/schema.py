@@ -27,6 +27,7 @@ VARIANT_NAMES = (
 DEMO_METHODS = ("gbto", "scripted")  # how demonstrations are made (pasta/data/demos.py)
 TOOL_KINDS = ("box", "knife", "gripper", "rolling_pin")
 PLAN_COSTS = ("learned", "decoded")  # the planner's set cost (PlanConfig.cost)
+PLAN_GUARDS = ("none", "reach")  # what keeps planned latents where the networks were trained (PlanConfig.guard)
 POLICY_ENCODERS = ("pointnet2", "pointnet")  # the policies' point encoder (PolicyNetConfig.encoder)
 POLICY_FRAMES = ("world", "dough")  # where the policies' clouds are expressed (PolicyNetConfig.frame)
 
@@ -311,6 +312,10 @@ class PlanConfig(Frozen):
     # Weight of the set cost in the objective; None: the official code's (10 for CutRearrange, 100 otherwise,
     # model_spec §5.4).
     alpha: float | None = Field(default=None, ge=0)
+    # "reach": each skill's outputs are kept within the distance from its inputs that its training transitions
+    # span (pasta.plan.reach), the factor falling to exp(-1) at reach_softness beyond it; "none": the appendix.
+    guard: Literal[PLAN_GUARDS] = "none"
+    reach_softness: float = Field(default=0.02, gt=0)
 
 
 class PolicyNetConfig(Frozen):

@@ -83,15 +83,16 @@ def plan_objective(functions: PlanningFunctions, settings: PlanSettings, skills:
         goal: ``(K_g, D_z + 3)`` goal entities, on the device of ``functions``.
     """
     device = goal.device
-    feasibilities = []
+    feasibilities, penalties = [], []
     with torch.no_grad():
         for h, (skill, attended) in enumerate(zip(skills, attention, strict=True), start=1):
             before, after = latent_sets[h - 1].to(device), latent_sets[h].to(device)
             n_out = after.shape[0] - (before.shape[0] - len(attended))
             index = _skill_index(functions.skills, skill, len(attended))
-            f = functions.feasibility(index, before[list(attended)].unsqueeze(0), after[:n_out].unsqueeze(0))
-            feasibilities.append(float(f[0]))
-    return score_of(tuple(feasibilities), set_cost(functions, latent_sets[-1], goal), settings)
+            inputs, outputs = before[list(attended)].unsqueeze(0), after[:n_out].unsqueeze(0)
+            feasibilities.append(float(functions.feasibility(index, inputs, outputs)[0]))
+            penalties.append(float(functions.step_penalty(index, inputs, outputs)[0]))
+    return score_of(tuple(feasibilities), set_cost(functions, latent_sets[-1], goal), settings, tuple(penalties))
 
 
 def attention_in_ground_truth(plan: Plan, truth: GroundTruthPlan, latent_dim: int) -> tuple[tuple[int, ...], ...]:
@@ -203,5 +204,6 @@ def diagnose_learned_plan(cfg: TaskConfig, bundle: TrainedModels, problem: Evalu
     truth = ground_truth_plan(cfg, bundle, chain, start, rng)
     device = next(bundle.vae.parameters()).device
     with frozen_parameters(bundle):
-        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points)
+        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
+                                     guard=settings.guard, reach_softness=settings.reach_softness)
         return diagnose(plan, truth, functions, settings, goal.to(device), partial(decode_set, bundle), seed)

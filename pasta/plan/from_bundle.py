@@ -12,8 +12,9 @@ from pasta.config import load
 from pasta.models.variants import variant_spec
 from pasta.plan.decoded_cost import decoded_chamfer_cost
 from pasta.plan.functions import PlanningFunctions
+from pasta.plan.reach import reach_penalty
 from pasta.plan.sequences import SkillSpec
-from pasta.plan.settings import COSTS
+from pasta.plan.settings import COSTS, GUARDS
 from pasta.train.bundle import TrainedModels
 
 __all__ = ["bundle_functions", "bundle_skills", "frozen_parameters"]
@@ -40,7 +41,7 @@ def bundle_skills(bundle: TrainedModels) -> tuple[SkillSpec, ...]:
 
 
 def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None = None, *, cost: str = "learned",
-                     cost_points: int = 64) -> PlanningFunctions:
+                     cost_points: int = 64, guard: str = "none", reach_softness: float = 0.02) -> PlanningFunctions:
     """Feasibility and pair cost from the bundle's networks (on whatever device they are).
 
     Args:
@@ -49,6 +50,8 @@ def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None =
             the VAE's decoded clouds on ``cost_points`` points (:func:`pasta.plan.decoded_cost.decoded_chamfer_cost`).
         skills: entity counts per skill (one spec per arity) in ``bundle.skill_names`` order; default
             ``bundle_skills(bundle)``.
+        guard: ``"reach"`` penalises each step by the bundle's reach (:func:`pasta.plan.reach.reach_penalty` with
+            ``reach_softness``); ``"none"``: no penalty.
     """
     specs = tuple(skills) if skills is not None else bundle_skills(bundle)
     names = tuple(dict.fromkeys(s.name for s in specs))
@@ -62,6 +65,16 @@ def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None =
     def feasibility(skill: int, inputs: torch.Tensor, outputs: torch.Tensor) -> torch.Tensor:
         return networks[skill](inputs, outputs)
 
+    if guard not in GUARDS:
+        raise ValueError(f"guard must be one of {list(GUARDS)}, got {guard!r}")
+    if guard == "reach":
+        if bundle.reach is None:
+            raise ValueError(f"plan.guard=reach needs the skills' reach, which this {bundle.task} bundle was trained "
+                             "without; train it again (`pasta train` resumes and measures it) or plan with "
+                             "plan.guard=none")
+        reach = [bundle.reach[bundle.skill_index(spec.name)] for spec in specs]
+        return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost,
+                                 reach_penalty(reach, bundle.prior.latent_dim, reach_softness))
     return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost)
 
 

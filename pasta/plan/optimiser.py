@@ -113,8 +113,10 @@ def _evaluate(functions: PlanningFunctions, pool: torch.Tensor, groups: list[_Gr
             continue
         local = group.rows[lo:hi] - row_start
         sample = local.unsqueeze(1)
-        f = functions.feasibility(group.skill, pool[sample, group.inputs[lo:hi]], pool[sample, group.outputs[lo:hi]])
-        log_f = log_f.index_add(0, local, f.clamp_min(settings.feasibility_floor).log())
+        inputs, outputs = pool[sample, group.inputs[lo:hi]], pool[sample, group.outputs[lo:hi]]
+        f = functions.feasibility(group.skill, inputs, outputs)
+        step = f.clamp_min(settings.feasibility_floor).log() - functions.step_penalty(group.skill, inputs, outputs)
+        log_f = log_f.index_add(0, local, step)
     achieved = pool.gather(1, final.unsqueeze(-1).expand(-1, -1, e))  # (b, K_H, E)
     if match is None:
         k_h, k_g = achieved.shape[1], goal.shape[0]

@@ -21,12 +21,14 @@ __all__ = ["Steps", "check_set", "describe", "plan", "plan_with", "score_of", "s
 
 @dataclass(frozen=True, eq=False)
 class Steps:
-    """The chosen sample's steps: skills, attention, ``U^0 .. U^H`` (CPU) and per-step feasibility."""
+    """The chosen sample's steps: skills, attention, ``U^0 .. U^H`` (CPU), per-step feasibility and guard
+    penalty."""
 
     skills: tuple[str, ...]
     attention: tuple[tuple[int, ...], ...]
     latent_sets: tuple[torch.Tensor, ...]
     feasibilities: tuple[float, ...]
+    penalties: tuple[float, ...]
 
 
 def check_set(u: torch.Tensor, entity_dim: int, name: str) -> None:
@@ -44,14 +46,17 @@ def describe(functions: PlanningFunctions, candidate: Candidate) -> Steps:
     """Read the steps of the best sample out of its pool and score each step's feasibility."""
     structures = candidate.structures[candidate.sequence_index]
     row, pool = candidate.row, candidate.pool
-    feasibilities = []
+    feasibilities, penalties = [], []
     with torch.no_grad():
         for h, skill in enumerate(structures.sequence):
             inputs = pool[structures.attended[h][row].to(pool.device)].unsqueeze(0)
             outputs = pool[structures.created[h].to(pool.device)].unsqueeze(0)
-            feasibilities.append(float(functions.feasibility(functions.skills.index(skill), inputs, outputs)[0]))
+            index = functions.skills.index(skill)
+            feasibilities.append(float(functions.feasibility(index, inputs, outputs)[0]))
+            penalties.append(float(functions.step_penalty(index, inputs, outputs)[0]))
     sets = tuple(pool[s[row].to(pool.device)].cpu() for s in structures.sets)
-    return Steps(tuple(s.name for s in structures.sequence), structures.structure(row), sets, tuple(feasibilities))
+    return Steps(tuple(s.name for s in structures.sequence), structures.structure(row), sets, tuple(feasibilities),
+                 tuple(penalties))
 
 
 def set_cost(functions: PlanningFunctions, achieved: torch.Tensor, goal: torch.Tensor) -> float:
@@ -63,10 +68,11 @@ def set_cost(functions: PlanningFunctions, achieved: torch.Tensor, goal: torch.T
         return float(matched_pair_cost(pair_costs, *best_matching(pair_costs))[0])
 
 
-def score_of(feasibilities: tuple[float, ...], cost: float, settings: PlanSettings) -> float:
-    """``sum_h log max(f_h, floor) - alpha * max(cost, 0)``."""
+def score_of(feasibilities: tuple[float, ...], cost: float, settings: PlanSettings,
+             penalties: tuple[float, ...] = ()) -> float:
+    """``sum_h (log max(f_h, floor) - penalty_h) - alpha * max(cost, 0)``."""
     log_f = torch.tensor(feasibilities, dtype=torch.float64).clamp_min(settings.feasibility_floor).log().sum()
-    return float(log_f) - settings.alpha * max(cost, 0.0)
+    return float(log_f) - sum(penalties) - settings.alpha * max(cost, 0.0)
 
 
 def plan_with(functions: PlanningFunctions, obs: torch.Tensor, goal: torch.Tensor, horizon: int,
@@ -94,7 +100,8 @@ def plan_with(functions: PlanningFunctions, obs: torch.Tensor, goal: torch.Tenso
     steps = describe(functions, candidate)
     cost = set_cost(functions, steps.latent_sets[-1], goal_d)
     return Plan(steps.skills, steps.attention, steps.latent_sets, steps.feasibilities, cost,
-                score_of(steps.feasibilities, cost, settings), time.perf_counter() - started)
+                score_of(steps.feasibilities, cost, settings, steps.penalties), time.perf_counter() - started,
+                steps.penalties)
 
 
 def plan(bundle: TrainedModels, obs: torch.Tensor, goal: torch.Tensor, horizon: int, settings: PlanSettings,
@@ -117,7 +124,8 @@ def plan(bundle: TrainedModels, obs: torch.Tensor, goal: torch.Tensor, horizon: 
     started = time.perf_counter()
     bundle.to(device)
     with frozen_parameters(bundle):
-        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points)
+        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
+                                     guard=settings.guard, reach_softness=settings.reach_softness)
         result = plan_with(functions, obs, goal, horizon, settings, device, skill_sequences)
     return Plan(result.skills, result.attention, result.latent_sets, result.feasibilities, result.cost,
-                result.score, time.perf_counter() - started)
+                result.score, time.perf_counter() - started, result.penalties)

@@ -41,17 +41,19 @@ def plan_receding_horizon_with(functions: PlanningFunctions, obs: torch.Tensor, 
     generator = torch.Generator().manual_seed(settings.seed)
     goal_d = goal.to(device=device, dtype=torch.float32)
     current = obs.to(device=device, dtype=torch.float32)
-    sets, attention, feasibilities = [current.cpu()], [], []
+    sets, attention, feasibilities, penalties = [current.cpu()], [], [], []
     for t in range(len(sequence)):
         candidate = optimise(functions, current, goal_d, [sequence[t : t + window]], settings, generator, device)
         steps = describe(functions, candidate)
         attention.append(steps.attention[0])
         feasibilities.append(steps.feasibilities[0])
+        penalties.append(steps.penalties[0])
         sets.append(steps.latent_sets[1])
         current = steps.latent_sets[1].to(device)
     cost = set_cost(functions, sets[-1], goal_d)
     return Plan(tuple(skill_sequence), tuple(attention), tuple(sets), tuple(feasibilities), cost,
-                score_of(tuple(feasibilities), cost, settings), time.perf_counter() - started)
+                score_of(tuple(feasibilities), cost, settings, tuple(penalties)), time.perf_counter() - started,
+                tuple(penalties))
 
 
 def plan_receding_horizon(bundle: TrainedModels, obs: torch.Tensor, goal: torch.Tensor, skill_sequence: Sequence[str],
@@ -73,7 +75,8 @@ def plan_receding_horizon(bundle: TrainedModels, obs: torch.Tensor, goal: torch.
     started = time.perf_counter()
     bundle.to(device)
     with frozen_parameters(bundle):
-        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points)
+        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
+                                     guard=settings.guard, reach_softness=settings.reach_softness)
         result = plan_receding_horizon_with(functions, obs, goal, skill_sequence, window, settings, device)
     return Plan(result.skills, result.attention, result.latent_sets, result.feasibilities, result.cost,
-                result.score, time.perf_counter() - started)
+                result.score, time.perf_counter() - started, result.penalties)

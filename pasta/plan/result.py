@@ -20,8 +20,9 @@ class Plan:
             kept entities of ``U^{h-1}`` in their order].
         feasibilities: predicted feasibility of each step, in [0, 1].
         cost: predicted set cost of ``U^H`` against the goal (optimal matching).
-        score: ``sum_h log max(f_h, floor) - alpha * max(cost, 0)``.
+        score: ``sum_h (log max(f_h, floor) - penalty_h) - alpha * max(cost, 0)``.
         planning_time_s: wall-clock seconds spent planning.
+        penalties: the guard's penalty of each step (``plan.guard``; empty without a guard's terms).
     """
 
     skills: tuple[str, ...]
@@ -31,6 +32,7 @@ class Plan:
     cost: float
     score: float
     planning_time_s: float
+    penalties: tuple[float, ...] = ()
 
     @property
     def horizon(self) -> int:

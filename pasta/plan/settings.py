@@ -5,9 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pasta.config.schema import PLAN_COSTS as COSTS
+from pasta.config.schema import PLAN_GUARDS as GUARDS
 from pasta.config.schema import TaskConfig
 
-__all__ = ["COSTS", "DEFAULT_HALVING", "PlanSettings"]
+__all__ = ["COSTS", "DEFAULT_HALVING", "GUARDS", "PlanSettings"]
 
 # Fractions of the iterations after which the worse half of the surviving samples is dropped
 # (successive halving; see docs/planning.md for the measurements behind this choice).
@@ -33,6 +34,9 @@ class PlanSettings:
         cost: ``"learned"`` (the bundle's cost predictor, the appendix's choice) or ``"decoded"`` (Chamfer
             distance between decoded entity clouds, :mod:`pasta.plan.decoded_cost`).
         cost_points: points per decoded entity with the decoded cost.
+        guard: ``"none"`` or ``"reach"`` (each skill's outputs kept within its training reach,
+            :mod:`pasta.plan.reach`).
+        reach_softness: how far beyond the reach the guard's factor falls to ``exp(-1)``.
     """
 
     lr: float
@@ -46,6 +50,8 @@ class PlanSettings:
     chunk_samples: int = 8192
     cost: str = "learned"
     cost_points: int = 64
+    guard: str = "none"
+    reach_softness: float = 0.02
 
     def __post_init__(self) -> None:
         if self.lr <= 0:
@@ -68,6 +74,10 @@ class PlanSettings:
             raise ValueError(f"cost must be one of {list(COSTS)}, got {self.cost!r}")
         if self.cost_points < 1:
             raise ValueError(f"cost_points must be >= 1, got {self.cost_points}")
+        if self.guard not in GUARDS:
+            raise ValueError(f"guard must be one of {list(GUARDS)}, got {self.guard!r}")
+        if self.reach_softness <= 0:
+            raise ValueError(f"reach_softness must be > 0, got {self.reach_softness}")
 
     @classmethod
     def from_config(cls, cfg: TaskConfig, *, halving: tuple[float, ...] = DEFAULT_HALVING, seed: int = 0
@@ -77,7 +87,8 @@ class PlanSettings:
         alpha = cfg.plan.alpha if cfg.plan.alpha is not None else 10.0 if cfg.task == "CutRearrange" else 100.0
         return cls(lr=cfg.plan.lr, iterations=cfg.plan.iterations, samples=cfg.plan.samples,
                    alpha=alpha, seed=seed, halving=halving,
-                   cost=cfg.plan.cost, cost_points=cfg.plan.cost_points)
+                   cost=cfg.plan.cost, cost_points=cfg.plan.cost_points, guard=cfg.plan.guard,
+                   reach_softness=cfg.plan.reach_softness)
 
     def halving_iterations(self) -> frozenset[int]:
         """Iterations (0-based) after whose step the worse half is dropped; never the last one."""

@@ -52,7 +52,7 @@ def _profile_tables(ev: pd.DataFrame, cells: pd.DataFrame, tasks: tuple[str, ...
     found = [tables.main_table(ev, tasks), tables.matrix_table(cells, tasks), tables.plan_quality_table(ev, tasks),
              tables.planning_time_table(ev, tasks), tables.emd_table(ev, tasks)]
     if "CutRearrange" in tasks:
-        found += [tables.ablation_table(ev), tables.samples_table(ev)]
+        found += [tables.ablation_table(ev), tables.samples_table(ev), tables.data_scale_table(ev)]
     if "CRS" in tasks:
         found += [tables.horizon_table(ev), tables.distractor_table(ev)]
     if tables.other_experiments(ev, tasks):

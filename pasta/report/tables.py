@@ -232,7 +232,8 @@ def plan_quality_table(ev: pd.DataFrame, tasks: Sequence[str]) -> Table:
 
 
 # Experiments with their own table; every other ``pasta.experiment`` tag goes to ``experiments_table``.
-TABULATED_EXPERIMENTS = ("main", "ablation", "planning_time", "sweep_samples", "sweep_horizon", "sweep_distractors")
+TABULATED_EXPERIMENTS = ("main", "ablation", "planning_time", "sweep_samples", "sweep_horizon", "sweep_distractors",
+                         "sweep_data")
 
 
 def other_experiments(ev: pd.DataFrame, tasks: Sequence[str]) -> list[str]:
@@ -282,6 +283,27 @@ def distractor_table(ev: pd.DataFrame, task: str = "CRS") -> Table:
                      "paper (§4.5)": score.cell() if score else NO_VALUE})
     return Table("distractors", f"Robustness to distractors on {task} (§4.5)",
                  pd.DataFrame(rows, columns=["distractors", "seeds", "performance", "success", "paper (§4.5)"]))
+
+
+def data_scale_table(ev: pd.DataFrame, task: str = "CutRearrange") -> Table:
+    """Plan quality and performance against the number of demonstrations the models were trained on
+    (``sweep_data``: one bundle per point, its learned plans run by the scripted skills; docs/planning.md)."""
+    runs = _select(ev, "sweep_data", task, PAPER_VARIANT)
+    rows = [{"demonstrations": value, "seeds": str(len(group)), "performance": cell(group["performance"]),
+             "success": cell(group["success_rate"], percent=True),
+             "skills = truth": cell(group["plan_sequence_match_rate"], percent=True),
+             "EMD(subgoal, truth)": cell(group["plan_subgoal_emd"], 4),
+             "EMD(planned, goal)": cell(group["emd_planned_goal"], 4)}
+            for value in _numeric_order(runs["sweep_value"]) for group in [runs[runs["sweep_value"] == value]]]
+    columns = ["demonstrations", "seeds", "performance", "success", "skills = truth", "EMD(subgoal, truth)",
+               "EMD(planned, goal)"]
+    if not rows:
+        rows = [dict.fromkeys(columns, NOT_RUN) | {"demonstrations": NO_VALUE, "seeds": "0"}]
+    return Table("data_scale", f"Plans against the number of demonstrations ({task})",
+                 pd.DataFrame(rows, columns=columns),
+                 "Each point trains the models on its own demonstrations (train + test trajectories) with the "
+                 "same number of gradient steps, then runs the learned plans with the scripted skills, so the "
+                 "score measures the plans alone. Mean ± std over evaluation seeds.")
 
 
 def samples_stats(ev: pd.DataFrame, task: str = "CutRearrange") -> pd.DataFrame:

@@ -172,7 +172,17 @@ class TransitionSampler:
 
     def feasibility_positives(self, skill: int, rows: np.ndarray, rng: np.random.Generator) -> FeasibilityPositives:
         """Positives from the transitions ``rows`` (``(n, 2)``) with hindsight goals."""
-        pairs = self._filter_all(self._obs_goal(rows, self._hindsight_states(rows, rng)), self.filter_epsilon)
+        return self._positives(skill, rows, self._hindsight_states(rows, rng))
+
+    def whole_skill_pairs(self, skill: int) -> FeasibilityPositives:
+        """Every trajectory of ``skill`` from its first state to its last, filtered as the positives."""
+        rows = self.transitions[skill]
+        rows = rows[rows[:, 1] == 0]
+        last = self.demos.first_state[rows[:, 0]] + self.demos.n_steps[rows[:, 0]] - 1
+        return self._positives(skill, rows, last)
+
+    def _positives(self, skill: int, rows: np.ndarray, goal_states: np.ndarray) -> FeasibilityPositives:
+        pairs = self._filter_all(self._obs_goal(rows, goal_states), self.filter_epsilon)
         spec = self.skills[skill]
         keep = [(o, g) for o, g in pairs if len(o) and len(g)
                 and (self.filter_epsilon <= 0 or (len(o) in spec.input_counts and len(g) == spec.entities_out))]

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from pasta.config.schema import TaskConfig
 from pasta.models.latent_prior import LatentPrior
 from pasta.models.model_config import ModelConfig
 from pasta.models.variants import variant_spec
+from pasta.plan.reach import skill_reach
 from pasta.train.bundle import DEFAULT_FILTER_EPSILON
 from pasta.train.datasets import TransitionSampler, split_trajectories, vae_clouds
 from pasta.train.demos import Demonstrations, load_demonstrations
@@ -107,6 +109,10 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     train_entities = torch.from_numpy(data.table.of_states(train_states)).to(device)
     prior = LatentPrior.from_centres(latents[train_entities, cfg.train.latent_dim :].cpu(), cfg.train.latent_dim)
     held_out = HeldOut.build(test_sampler, latents)
-    return train_heads(cfg, variant, vae, latents, train_sampler, held_out, prior,
-                       settings or HeadsSettings.from_config(cfg, variant, seed), progress_path,
-                       model_config=model_config, on_epoch=on_epoch, device=device)
+    result = train_heads(cfg, variant, vae, latents, train_sampler, held_out, prior,
+                         settings or HeadsSettings.from_config(cfg, variant, seed), progress_path,
+                         model_config=model_config, on_epoch=on_epoch, device=device)
+    centres = latents[:, cfg.train.latent_dim :].cpu()
+    reach = tuple(skill_reach((centres[o], centres[g]) for o, g in zip(pairs.obs, pairs.goal, strict=True))
+                  for pairs in (train_sampler.whole_skill_pairs(k) for k in range(len(cfg.skills))))
+    return dataclasses.replace(result, bundle=dataclasses.replace(result.bundle, reach=reach))

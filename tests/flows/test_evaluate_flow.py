@@ -29,7 +29,8 @@ def test_evaluation_flow_plans_executes_and_logs_every_metric(prefect_server, is
     cfg = load("CutRearrange", "smoke", list(OVERRIDES))
     _save_untrained_bundle()
 
-    summary = evaluate_flow.run("CutRearrange", "smoke", seeds=[3], overrides=OVERRIDES, experiment="ablation")
+    summary = evaluate_flow.run("CutRearrange", "smoke", seeds=[3], overrides=OVERRIDES, experiment="ablation",
+                                sweep_value="150")
     assert summary["seeds"] == [3] and summary["executor"] == "policy"
     assert np.isfinite(summary["performance_mean"]) and summary["performance_std"] == 0.0
     assert 0.0 <= summary["success_mean"] <= 1.0
@@ -40,6 +41,7 @@ def test_evaluation_flow_plans_executes_and_logs_every_metric(prefect_server, is
     run = runs.iloc[0]
     assert run["tags.pasta.stage"] == "evaluate" and run["tags.pasta.seed"] == "3"
     assert run["tags.pasta.experiment"] == "ablation" and run["tags.pasta.variant"] == "pasta"
+    assert run["tags.pasta.sweep_value"] == "150"
     names = ["performance", "success_rate", "planning_time_s", "emd_planned_goal", "emd_reached_goal", "emd_initial"]
     names += [f"{m}_config_{i}" for m in ("performance", "success", "planning_time_s") for i in (0, 1)]
     names += list(PLAN_QUALITY)  # a learned plan's diagnostics against the ground truth
@@ -82,7 +84,8 @@ def test_cli_evaluate_arguments():
     assert (args.task, args.profile, args.variant, args.executor, args.seeds) == ("CRS", "smoke", "pasta",
                                                                                  "scripted", [0, 2])
     assert args.set == ["plan.samples=8"] and args.experiment is None and args.plan == "learned"
-    assert (args.workers, args.dask_address) == (1, None)
+    assert (args.workers, args.dask_address, args.sweep_value) == (1, None, None)
+    assert build_parser().parse_args(["evaluate", "--task", "CRS", "--sweep-value", "150"]).sweep_value == "150"
     assert build_parser().parse_args(["evaluate", "--task", "CRS"]).seeds is None
     on_dask = build_parser().parse_args(["evaluate", "--task", "CRS", "--dask-address", "tcp://scheduler:8786"])
     assert on_dask.dask_address == "tcp://scheduler:8786"

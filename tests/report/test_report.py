@@ -145,8 +145,8 @@ def test_missing_runs_give_not_run_rows_not_errors(tmp_path):
     assert "## No finished runs yet" in report.markdown
     for _, table in report.tables:
         metric_columns = [c for c in table.frame.columns if c not in {"task", "variant", "seeds", "horizon",
-                                                                       "distractors", "samples", "plan",
-                                                                       "experiment"}
+                                                                       "distractors", "samples", "demonstrations",
+                                                                       "plan", "experiment"}
                           and not c.startswith("paper")]
         empty = tables.NO_VALUE if table.key == "matrix" else "not run"  # the matrix marks an empty cell "—"
         assert (table.frame[metric_columns] == empty).all().all(), table.key

@@ -22,6 +22,9 @@ RUNS = [
     ("decoded_cost", "pasta", "", "learned", "scripted", 0, 0.95, {**QUALITY, "plan_subgoal_emd": 0.02}),
     ("main", "flat3d", "", "learned", "policy", 0, 0.5, None),
     ("sweep_samples", "pasta", "10", "learned", "policy", 0, 0.6, None),
+    ("sweep_data", "pasta", "150", "learned", "scripted", 0, 0.5, QUALITY),
+    ("sweep_data", "pasta", "30", "learned", "scripted", 0, 0.2, {**QUALITY, "plan_sequence_match_rate": 0.4}),
+    ("sweep_data", "pasta", "30", "learned", "scripted", 1, 0.4, QUALITY),
 ]
 
 
@@ -86,3 +89,17 @@ def test_each_task_report_shows_the_matrix_and_the_plan_quality():
     assert "| CutRearrange | learned plan | 0.200 ± 0.141 (2 seeds) | 0.030 ± 0.014 (2 seeds) |" in markdown
     assert "### Plan quality: the planner's plans against the ground-truth chain" in markdown
     assert "| CutRearrange | decoded_cost | 1 | 60% | 40% | 0.0200 | 0.1000 | 20% |" in markdown
+
+
+def test_the_data_scale_table_has_one_row_per_number_of_demonstrations():
+    table = tables.data_scale_table(evaluation_runs(_rows()))
+    frame = table.frame.set_index("demonstrations")
+    assert list(frame.index) == ["30", "150"]  # numeric order, not the runs' order or the strings'
+    assert frame.loc["30"].to_dict() == {"seeds": "2", "performance": "0.300 ± 0.141", "success": "0% ± 0%",
+                                         "skills = truth": "50% ± 14%", "EMD(subgoal, truth)": "0.0500 ± 0.0000",
+                                         "EMD(planned, goal)": "0.1000 ± 0.0000"}
+    assert frame.loc["150", "performance"] == "0.500"
+    assert "### Plans against the number of demonstrations (CutRearrange)" in build_report("CutRearrange",
+                                                                                            _rows()).markdown
+    empty = tables.data_scale_table(evaluation_runs(_rows("CRS")), "CutRearrange")
+    assert empty.frame.iloc[0]["performance"] == tables.NOT_RUN
