@@ -324,6 +324,26 @@ def test_cut_at_the_small_grid_leaves_two_separate_pieces():
     assert env.particles()[left_before, 0].mean() < x_before - 0.03
 
 
+def test_a_cut_whose_subgoal_asks_for_no_push_still_separates_the_pieces():
+    """A learned subgoal's decoded pieces may lie almost where the cut leaves them (here the left one 0.031 to
+    -x, less than the knife's half thickness plus the tolerance): the knife still pushes the piece that the
+    subgoal moves more (the left one) MIN_PUSH beyond its face, so that no smear joins the pieces."""
+    env, _, _ = cut_problem("small")
+    obs = env.observation().dough_points
+    target = obs.copy()
+    target[target[:, 0] <= 0.49, 0] -= 0.031
+    left_before = env.particles()[:, 0] <= 0.49
+    x_before = env.particles()[left_before, 0].mean()
+    run_skill(env, "cut", target)
+    env.settle(env.cfg.sim.settle_steps)
+    cfg = env.cfg
+    points = env.observation().dough_points
+    labels = label_entities(points, eps=cfg.data.dbscan_eps, min_samples=cfg.data.dbscan_min_samples,
+                            min_points=cfg.data.dbscan_min_points)
+    assert len(np.unique(labels)) == 2
+    assert env.particles()[left_before, 0].mean() < x_before - 0.05  # the knife's face 0.025, then MIN_PUSH
+
+
 def gripper_hold_speeds(env: DoughEnv, n_hold: int = 60) -> np.ndarray:
     """Close the gripper on the settled dough (gap action +1 until it stops narrowing), then hold it for
     ``n_hold`` steps of seeded small random motions (components up to 0.09, as the learned policies' were)

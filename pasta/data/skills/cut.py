@@ -19,6 +19,11 @@ KNIFE_CLEARANCE = 0.03  # knife edge above the dough top before a cut (as CutRea
 CUT_BELOW_BOTTOM = 0.02  # the knife edge goes this far below the dough's bottom
 CUT_SPEED = 0.5  # fraction of full speed at which the knife goes through the dough (faster flings the halves)
 SEPARATION_TOLERANCE = 0.01  # a piece closer than this (beyond the knife's half thickness) is not pushed
+# When the subgoal asks for no push (a learned subgoal's decoded pieces may overlap), the piece that the subgoal
+# moves more is still pushed this far beyond the knife's face: without it the pieces stay joined by the cut's
+# smear and the next skill carries both (CRS, learned plans at small: -0.83 instead of 0.76 on one configuration).
+# The generator's own cut subgoals slide a piece 0.1 or more, so they always ask for a push of their own.
+MIN_PUSH = 0.05
 
 
 def _cut_plan(scene: Scene) -> tuple[float, list[np.ndarray]]:
@@ -94,6 +99,8 @@ def cut(env: DoughEnv, m: Motion, scene: Scene) -> None:
             pushes.append(shift_left + half)
         if shift_right > half + SEPARATION_TOLERANCE:
             pushes.append(shift_right - half)
+        if not pushes:
+            pushes.append(-MIN_PUSH if -shift_left >= shift_right else MIN_PUSH)
         for push in pushes:
             m.move(pos=(cut_x + push, cut_y, m.pos[2]), ease=2,
                    ease_out=braking_steps(env, abs(cut_x + push - m.pos[0]), speed))
