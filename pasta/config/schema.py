@@ -312,8 +312,9 @@ class PlanConfig(Frozen):
     # Weight of the set cost in the objective; None: the official code's (10 for CutRearrange, 100 otherwise,
     # model_spec §5.4).
     alpha: float | None = Field(default=None, ge=0)
-    # "reach": each skill's outputs are kept within the distance from its inputs that its training transitions
-    # span (pasta.plan.reach), the factor falling to exp(-1) at reach_softness beyond it; "none": the appendix.
+    # "reach": each skill's outputs are kept within the displacement from its inputs, per axis, that its training
+    # transitions span (pasta.plan.reach), the factor falling to exp(-1) at reach_softness beyond it; "none": the
+    # appendix.
     guard: Literal[PLAN_GUARDS] = "none"
     reach_softness: float = Field(default=0.02, gt=0)
 

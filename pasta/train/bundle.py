@@ -47,9 +47,9 @@ class TrainedModels:
         prior: ``z ~ N(0, I)``, ``t ~ U(t_low, t_high)`` from the training entity centres.
         filter_epsilon: squared-Chamfer threshold of entity filtering (0 when the variant does not filter).
         models: ``{"vae", "feasibility" (ModuleList), "cost", "policy" (ModuleList)}``.
-        reach: per skill, the largest distance from an output entity's centre to the nearest input entity's centre
-            over the training transitions (:mod:`pasta.plan.reach`; ``nan`` for a skill without any); ``None``
-            for a bundle trained before it was measured.
+        reach: per skill, the largest displacement along x, y and z of an output entity's centre from the nearest
+            input entity's centre over the training transitions (:mod:`pasta.plan.reach`; ``nan`` for a skill
+            without any); ``None`` for a bundle trained before it was measured.
     """
 
     task: str
@@ -60,12 +60,14 @@ class TrainedModels:
     prior: LatentPrior
     filter_epsilon: float
     models: dict[str, nn.Module]
-    reach: tuple[float, ...] | None = None
+    reach: tuple[tuple[float, float, float], ...] | None = None
 
     def __post_init__(self) -> None:
         variant_spec(self.variant)
         if self.reach is not None and len(self.reach) != len(self.skill_names):
             raise ValueError(f"reach has {len(self.reach)} values for {len(self.skill_names)} skills")
+        if self.reach is not None and any(len(r) != 3 for r in self.reach):
+            raise ValueError(f"each skill's reach must be (x, y, z), got {self.reach}")
         for key in ("vae", "feasibility", "cost", "policy"):
             if key not in self.models:
                 raise ValueError(f"models lacks {key!r}; has {sorted(self.models)}")
@@ -116,7 +118,7 @@ class TrainedModels:
             "prior": {"latent_dim": self.prior.latent_dim, "t_low": list(self.prior.t_low),
                       "t_high": list(self.prior.t_high)},
             "filter_epsilon": self.filter_epsilon,
-            "reach": None if self.reach is None else list(self.reach),
+            "reach": None if self.reach is None else [list(r) for r in self.reach],
         }
 
 
@@ -168,6 +170,6 @@ def load_trained(path: str | os.PathLike[str], map_location: str | torch.device 
         prior=prior,
         filter_epsilon=float(meta["filter_epsilon"]),
         models=models,
-        reach=None if meta.get("reach") is None else tuple(float(r) for r in meta["reach"]),
+        reach=None if meta.get("reach") is None else tuple(tuple(float(v) for v in r) for r in meta["reach"]),
     )
     return bundle.to(map_location).eval()

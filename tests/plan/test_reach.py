@@ -12,38 +12,42 @@ import torch
 from pasta.config import load
 from pasta.models.latent_prior import LatentPrior
 from pasta.plan import PlanningFunctions, PlanSettings, SkillSpec, bundle_functions, plan_with
-from pasta.plan.reach import output_distances, reach_penalty, skill_reach
+from pasta.plan.reach import output_displacements, reach_penalty, skill_reach
 from pasta.train.bundle import load_trained, save_trained, untrained
 from tests.models.synthetic import tiny_model_config
 
 PRIOR = LatentPrior(2, (0.0, 0.0, 0.0), (1.0, 0.2, 1.0))
 
 
-def test_output_distances_are_the_nearest_input_centre():
+def test_output_displacements_are_from_the_nearest_input_centre():
     gen = torch.Generator().manual_seed(0)
     inputs, outputs = torch.rand(4, 3, 3, generator=gen), torch.rand(4, 2, 3, generator=gen)
-    expected = torch.tensor([[min(float((outputs[b, j] - inputs[b, i]).norm()) for i in range(3)) for j in range(2)]
-                             for b in range(4)])
-    torch.testing.assert_close(output_distances(inputs, outputs), expected)
+    expected = torch.zeros(4, 2, 3)
+    for b in range(4):
+        for j in range(2):
+            nearest = min(range(3), key=lambda i: float((outputs[b, j] - inputs[b, i]).norm()))
+            expected[b, j] = (outputs[b, j] - inputs[b, nearest]).abs()
+    torch.testing.assert_close(output_displacements(inputs, outputs), expected)
 
 
-def test_skill_reach_is_the_farthest_output_over_the_transitions():
-    stay = (torch.tensor([[0.5, 0.1, 0.5]]), torch.tensor([[0.4, 0.1, 0.5], [0.6, 0.1, 0.5]]))
-    moved = (torch.tensor([[0.5, 0.1, 0.5], [0.2, 0.1, 0.2]]), torch.tensor([[0.2, 0.1, 0.5]]))
-    assert skill_reach([stay, moved]) == pytest.approx(0.3)  # 0.3 to the nearer of the two inputs, not 0.42
-    assert skill_reach([stay]) == pytest.approx(0.1)
-    assert math.isnan(skill_reach([]))
+def test_skill_reach_is_the_largest_displacement_per_axis():
+    split = (torch.tensor([[0.5, 0.1, 0.5]]), torch.tensor([[0.4, 0.1, 0.5], [0.6, 0.09, 0.52]]))
+    moved = (torch.tensor([[0.5, 0.1, 0.5], [0.2, 0.1, 0.2]]), torch.tensor([[0.2, 0.1, 0.45]]))
+    # moved: nearest input (0.2, 0.1, 0.2) at 0.25, not (0.5, 0.1, 0.5) at 0.30
+    assert skill_reach([split, moved]) == pytest.approx((0.1, 0.01, 0.25))
+    assert skill_reach([split]) == pytest.approx((0.1, 0.01, 0.02))
+    assert all(math.isnan(r) for r in skill_reach([]))
 
 
 def test_the_penalty_is_zero_within_the_reach_and_grows_beyond_it():
-    penalty = reach_penalty([0.1, math.nan], latent_dim=2, softness=0.05)
+    penalty = reach_penalty([(0.1, 0.01, 0.02), (math.nan,) * 3], latent_dim=2, softness=0.05)
     inputs = torch.tensor([[[0.0, 0.0, 0.5, 0.1, 0.5]]]).expand(3, 1, 5)
-    outputs = torch.tensor([[[1.0, 1.0, 0.55, 0.1, 0.5]], [[0.0, 0.0, 0.65, 0.1, 0.5]], [[0.0, 0.0, 0.5, 0.1, 0.8]]])
-    # distances 0.05 (within), 0.15 (0.05 beyond: 1) and 0.3 (0.2 beyond: 16); z plays no part
-    torch.testing.assert_close(penalty(0, inputs, outputs), torch.tensor([0.0, 1.0, 16.0]))
+    outputs = torch.tensor([[[1.0, 1.0, 0.55, 0.1, 0.5]], [[0.0, 0.0, 0.65, 0.1, 0.5]], [[0.0, 0.0, 0.5, 0.1, 0.62]]])
+    # displacements 0.05 in x (within), 0.15 in x (0.05 beyond: 1) and 0.12 in z (0.1 beyond: 4); z plays no part
+    torch.testing.assert_close(penalty(0, inputs, outputs), torch.tensor([0.0, 1.0, 4.0]))
     torch.testing.assert_close(penalty(1, inputs, outputs), torch.zeros(3))  # nan: unguarded
     with pytest.raises(ValueError, match="softness must be > 0, got 0"):
-        reach_penalty([0.1], latent_dim=2, softness=0.0)
+        reach_penalty([(0.1, 0.1, 0.1)], latent_dim=2, softness=0.0)
 
 
 def _exploitable_problem() -> tuple[PlanningFunctions, torch.Tensor, torch.Tensor]:
@@ -70,14 +74,15 @@ def test_the_reach_guard_keeps_a_split_in_place_where_the_unguarded_planner_tele
     settings = PlanSettings(lr=0.05, iterations=120, samples=128, alpha=100.0, seed=0, halving=())
     sequences = [("split", "move", "move")]
     free = plan_with(functions, obs, goal, 3, settings, skill_sequences=sequences)
-    guarded = dataclasses.replace(functions, penalty=reach_penalty([0.05, 1.0], latent_dim=2, softness=0.01))
+    reach = [(0.05, 0.05, 0.05), (1.0, 1.0, 1.0)]
+    guarded = dataclasses.replace(functions, penalty=reach_penalty(reach, latent_dim=2, softness=0.01))
     kept = plan_with(guarded, obs, goal, 3, settings, skill_sequences=sequences)
 
     def split_distance(plan) -> float:
-        return float(output_distances(obs[None, :, 2:], plan.latent_sets[1][None, :2, 2:]).max())
+        return float(output_displacements(obs[None, :, 2:], plan.latent_sets[1][None, :2, 2:]).max())
 
     assert split_distance(free) > 0.15  # the unguarded split leaves its pieces where they started, far off
-    assert split_distance(kept) < 0.07  # the guarded one splits in place (reach 0.05) ...
+    assert split_distance(kept) < 0.07  # the guarded one splits in place (reach 0.05 per axis) ...
     assert kept.cost < 1e-3  # ... and the moves still reach the goal
     assert kept.penalties[0] < 1.0 and kept.score == pytest.approx(
         sum(math.log(max(f, settings.feasibility_floor)) for f in kept.feasibilities) - sum(kept.penalties)
@@ -90,14 +95,16 @@ def test_a_bundle_carries_its_reach_and_the_guard_needs_it(tmp_path):
     with pytest.raises(ValueError, match="trained without; train it again .* or plan with plan.guard=none"):
         bundle_functions(bundle, guard="reach")
     with pytest.raises(ValueError, match="reach has 1 values for 2 skills"):
-        dataclasses.replace(bundle, reach=(0.1,))
-    reached = dataclasses.replace(bundle, reach=(0.2, math.nan))
+        dataclasses.replace(bundle, reach=((0.1, 0.1, 0.1),))
+    with pytest.raises(ValueError, match=r"each skill's reach must be \(x, y, z\)"):
+        dataclasses.replace(bundle, reach=((0.1,), (0.1,)))
+    reached = dataclasses.replace(bundle, reach=((0.2, 0.01, 0.02), (math.nan,) * 3))
     loaded = load_trained(save_trained(tmp_path / "models.pt", reached))
-    assert loaded.reach[0] == pytest.approx(0.2) and math.isnan(loaded.reach[1])
+    assert loaded.reach[0] == pytest.approx((0.2, 0.01, 0.02)) and math.isnan(loaded.reach[1][0])
     functions = bundle_functions(loaded, guard="reach", reach_softness=0.05)
     u = torch.zeros(1, 1, 5)
     far = torch.zeros(1, 2, 5)
-    far[..., 2] = 0.3  # 0.3 from the input: 0.1 beyond the cut's reach, for each of the two outputs
+    far[..., 2] = 0.3  # 0.3 along x from the input: 0.1 beyond the cut's reach, for each of the two outputs
     torch.testing.assert_close(functions.step_penalty(0, u, far), torch.tensor([8.0]))
     torch.testing.assert_close(functions.step_penalty(1, u, far[:, :1]), torch.tensor([0.0]))  # rearrange: nan
     assert bundle_functions(loaded).penalty is None
