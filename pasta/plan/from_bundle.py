@@ -67,15 +67,15 @@ def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None =
 
     if guard not in GUARDS:
         raise ValueError(f"guard must be one of {list(GUARDS)}, got {guard!r}")
+    penalty = None
     if guard == "reach":
         if bundle.reach is None:
             raise ValueError(f"plan.guard=reach needs the skills' reach, which this {bundle.task} bundle was trained "
                              "without; train it again (`pasta train` resumes and measures it) or plan with "
                              "plan.guard=none")
         reach = [bundle.reach[bundle.skill_index(spec.name)] for spec in specs]
-        return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost,
-                                 reach_penalty(reach, bundle.prior.latent_dim, reach_softness))
-    return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost)
+        penalty = reach_penalty(reach, bundle.prior.latent_dim, reach_softness)
+    return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost, penalty)
 
 
 @contextmanager

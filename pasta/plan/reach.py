@@ -62,13 +62,13 @@ def reach_penalty(reach: Sequence[Sequence[float]], latent_dim: int, softness: f
     if softness <= 0:
         raise ValueError(f"softness must be > 0, got {softness}")
 
-    limits = [torch.tensor(r, dtype=torch.float32) for r in reach]
+    limits = [None if any(math.isnan(v) for v in r) else torch.tensor(r, dtype=torch.float32) for r in reach]
 
     def penalty(skill: int, inputs: torch.Tensor, outputs: torch.Tensor) -> torch.Tensor:
-        limit = limits[skill].to(inputs)
-        if bool(limit.isnan().any()):
+        limit = limits[skill]
+        if limit is None:
             return inputs.new_zeros(inputs.shape[0])
         displacement = output_displacements(inputs[..., latent_dim:], outputs[..., latent_dim:])
-        return ((displacement - limit).clamp_min(0.0) / softness).pow(2).sum(dim=(-1, -2))
+        return ((displacement - limit.to(inputs)).clamp_min(0.0) / softness).pow(2).sum(dim=(-1, -2))
 
     return penalty

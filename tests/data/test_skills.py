@@ -153,13 +153,28 @@ def gather_problem(seed: int = 0, half: float = 0.03):
     return env, target, None
 
 
-def cut_problem(profile: str, seed: int = 0):
-    """CutRearrange: the whole dough cut at x = 0.49 and the left piece slid 0.1 to -x (env_spec 2.3)."""
+def cut_problem(profile: str, seed: int = 0, slide: float = 0.1):
+    """CutRearrange: the whole dough cut at x = 0.49 and the left piece slid ``slide`` to -x (env_spec 2.3)."""
     env = env_for("CutRearrange", profile)
     obs = settled(env, default_configuration(env.cfg, np.random.default_rng(seed)))
     target = obs.copy()
-    target[target[:, 0] <= 0.49, 0] -= 0.1
+    target[target[:, 0] <= 0.49, 0] -= slide
     return env, target, None
+
+
+def cut_at_small(slide: float) -> tuple[np.ndarray, np.ndarray, float, DoughEnv]:
+    """Run the scripted cut of ``cut_problem("small", slide=slide)`` and settle: the dough points ``(P, 3)``,
+    their DBSCAN labels, how far the left piece's particles moved along x, and the env."""
+    env, target, _ = cut_problem("small", slide=slide)
+    left_before = env.particles()[:, 0] <= 0.49
+    x_before = env.particles()[left_before, 0].mean()
+    run_skill(env, "cut", target)
+    env.settle(env.cfg.sim.settle_steps)
+    cfg = env.cfg
+    points = env.observation().dough_points
+    labels = label_entities(points, eps=cfg.data.dbscan_eps, min_samples=cfg.data.dbscan_min_samples,
+                            min_points=cfg.data.dbscan_min_points)
+    return points, labels, float(env.particles()[left_before, 0].mean() - x_before), env
 
 
 # ---------------------------------------------------------------------- tests
@@ -308,40 +323,21 @@ def test_cut_at_the_small_grid_leaves_two_separate_pieces():
     """Small's knife expels dough at 0.4 (conf/profiles/small.yaml): the cut leaves two DBSCAN pieces with no
     particle of one within eps of the other (no floor smear joining them), the left one moved to -x. Its
     single-cut score is the price of that rate (below 0.2 here; 0.33 at 0.1, which leaves smears on CRS)."""
-    env, target, _ = cut_problem("small")
+    points, labels, left_moved, env = cut_at_small(slide=0.1)
     assert env.cfg.sim.tool_expel_rate == 0.4
-    left_before = env.particles()[:, 0] <= 0.49
-    x_before = env.particles()[left_before, 0].mean()
-    run_skill(env, "cut", target)
-    env.settle(env.cfg.sim.settle_steps)
-    cfg = env.cfg
-    points = env.observation().dough_points
-    labels = label_entities(points, eps=cfg.data.dbscan_eps, min_samples=cfg.data.dbscan_min_samples,
-                            min_points=cfg.data.dbscan_min_points)
     assert len(np.unique(labels)) == 2
     gap, _ = cKDTree(points[labels == 0]).query(points[labels == 1], k=1)
-    assert gap.min() > cfg.data.dbscan_eps, gap.min()
-    assert env.particles()[left_before, 0].mean() < x_before - 0.03
+    assert gap.min() > env.cfg.data.dbscan_eps, gap.min()
+    assert left_moved < -0.03
 
 
 def test_a_cut_whose_subgoal_asks_for_no_push_still_separates_the_pieces():
     """A learned subgoal's decoded pieces may lie almost where the cut leaves them (here the left one 0.031 to
     -x, less than the knife's half thickness plus the tolerance): the knife still pushes the piece that the
     subgoal moves more (the left one) MIN_PUSH beyond its face, so that no smear joins the pieces."""
-    env, _, _ = cut_problem("small")
-    obs = env.observation().dough_points
-    target = obs.copy()
-    target[target[:, 0] <= 0.49, 0] -= 0.031
-    left_before = env.particles()[:, 0] <= 0.49
-    x_before = env.particles()[left_before, 0].mean()
-    run_skill(env, "cut", target)
-    env.settle(env.cfg.sim.settle_steps)
-    cfg = env.cfg
-    points = env.observation().dough_points
-    labels = label_entities(points, eps=cfg.data.dbscan_eps, min_samples=cfg.data.dbscan_min_samples,
-                            min_points=cfg.data.dbscan_min_points)
+    _, labels, left_moved, _ = cut_at_small(slide=0.031)
     assert len(np.unique(labels)) == 2
-    assert env.particles()[left_before, 0].mean() < x_before - 0.05  # the knife's face 0.025, then MIN_PUSH
+    assert left_moved < -0.05  # the knife's face 0.025, then MIN_PUSH
 
 
 def gripper_hold_speeds(env: DoughEnv, n_hold: int = 60) -> np.ndarray:
