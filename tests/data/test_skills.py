@@ -34,6 +34,7 @@ from pasta.config import load
 from pasta.config.schema import TASK_NAMES
 from pasta.data import skills
 from pasta.data.skills import available_skills, place_tool_for_skill, scripted_actions, skill_tool
+from pasta.data.skills.cut import split_along_x
 from pasta.data.skills.motion import Motion
 from pasta.geometry.distances import earth_movers_distance
 from pasta.geometry.entities import label_entities
@@ -338,6 +339,31 @@ def test_a_cut_whose_subgoal_asks_for_no_push_still_separates_the_pieces():
     _, labels, left_moved, _ = cut_at_small(slide=0.031)
     assert len(np.unique(labels)) == 2
     assert left_moved < -0.05  # the knife's face 0.025, then MIN_PUSH
+
+
+def test_split_along_x_matches_a_search_over_every_split():
+    """The exact 1-D two-means split against trying every boundary between sorted x values."""
+    rng = np.random.default_rng(3)
+    cloud = np.concatenate([rng.uniform((0.60, 0.05, 0.4), (0.76, 0.15, 0.5), (300, 3)),
+                            rng.uniform((0.70, 0.05, 0.4), (0.90, 0.15, 0.5), (200, 3))])
+    left, right = split_along_x(cloud)
+    x = np.sort(cloud[:, 0])
+    costs = [x[:k].var() * k + x[k:].var() * (len(x) - k) for k in range(1, len(x))]
+    best = int(np.argmin(costs)) + 1
+    assert len(left) == best and len(right) == len(x) - best
+    assert left[:, 0].max() <= right[:, 0].min()
+    assert len(split_along_x(cloud[:1])) == 1
+
+
+def test_a_cut_whose_subgoal_pieces_overlap_still_cuts_where_they_meet():
+    """A learned cut subgoal may decode into two pieces that overlap (here the left one slid 0.02 into the right
+    one), which segmentation sees as one piece. The cut splits that target along x where the pieces meet and
+    separates them, instead of cutting the dough in its middle without a push (which left the dough joined and
+    the next push carrying both pieces: CRS configuration 0, -0.84)."""
+    points, labels, _, env = cut_at_small(slide=-0.02)
+    assert len(np.unique(labels)) == 2
+    gap, _ = cKDTree(points[labels == 0]).query(points[labels == 1], k=1)
+    assert gap.min() > env.cfg.data.dbscan_eps, gap.min()
 
 
 def gripper_hold_speeds(env: DoughEnv, n_hold: int = 60) -> np.ndarray:

@@ -26,6 +26,27 @@ SEPARATION_TOLERANCE = 0.01  # a piece closer than this (beyond the knife's half
 MIN_PUSH = 0.05
 
 
+def split_along_x(cloud: np.ndarray) -> list[np.ndarray]:
+    """Two pieces (left, right) of a ``(M, 3)`` cloud split at the x that minimises the pieces' summed
+    squared x deviations (1-D two-means, exact); the cloud itself when it has fewer than two points.
+
+    A learned plan's decoded cut subgoal may hold two pieces that overlap, which segmentation sees as one;
+    a cut always yields a left and a right piece, so their boundary is where the cloud splits best along x.
+    """
+    if len(cloud) < 2:
+        return [cloud]
+    order = np.argsort(cloud[:, 0], kind="stable")
+    x = cloud[order, 0]
+    n = len(x)
+    count = np.arange(1, n)  # points in the left piece for a split after each sorted point
+    left_sum = np.cumsum(x)[:-1]
+    left_sq = np.cumsum(x * x)[:-1]
+    total, total_sq = x.sum(), (x * x).sum()
+    cost = (left_sq - left_sum ** 2 / count) + ((total_sq - left_sq) - (total - left_sum) ** 2 / (n - count))
+    split = int(np.argmin(cost)) + 1
+    return [cloud[order[:split]], cloud[order[split:]]]
+
+
 def _cut_plan(scene: Scene) -> tuple[float, list[np.ndarray]]:
     """The cut x and the two target pieces (left, right; empty without a two-piece target).
 
@@ -39,6 +60,8 @@ def _cut_plan(scene: Scene) -> tuple[float, list[np.ndarray]]:
         centre = scene.centre
         pieces.sort(key=lambda p: float(np.linalg.norm(p.mean(axis=0)[[0, 2]] - centre[[0, 2]])))
         pieces = pieces[:2]
+    if len(pieces) == 1:  # the target pieces touch (a decoded subgoal): split the target where they meet
+        pieces = split_along_x(pieces[0])
     if len(pieces) < 2:
         return 0.5 * (x_lo + x_hi), []
     pieces.sort(key=lambda p: float(p[:, 0].mean()))
