@@ -317,6 +317,9 @@ class PlanConfig(Frozen):
     # appendix.
     guard: Literal[PLAN_GUARDS] = "none"
     reach_softness: float = Field(default=0.02, gt=0)
+    # "tool": a skill whose tool moves along x and z is limited in horizontal distance (by the larger of its x and
+    # z reach) and in y; the others per axis. "axes": every skill per axis.
+    reach_frame: Literal["axes", "tool"] = "tool"
 
 
 class PolicyNetConfig(Frozen):

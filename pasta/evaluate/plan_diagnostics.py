@@ -205,5 +205,6 @@ def diagnose_learned_plan(cfg: TaskConfig, bundle: TrainedModels, problem: Evalu
     device = next(bundle.vae.parameters()).device
     with frozen_parameters(bundle):
         functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
-                                     guard=settings.guard, reach_softness=settings.reach_softness)
+                                     guard=settings.guard, reach_softness=settings.reach_softness,
+                                     planar_skills=settings.planar_skills)
         return diagnose(plan, truth, functions, settings, goal.to(device), partial(decode_set, bundle), seed)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from contextlib import contextmanager
 from functools import cache
 
@@ -41,7 +41,8 @@ def bundle_skills(bundle: TrainedModels) -> tuple[SkillSpec, ...]:
 
 
 def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None = None, *, cost: str = "learned",
-                     cost_points: int = 64, guard: str = "none", reach_softness: float = 0.02) -> PlanningFunctions:
+                     cost_points: int = 64, guard: str = "none", reach_softness: float = 0.02,
+                     planar_skills: Collection[str] = ()) -> PlanningFunctions:
     """Feasibility and pair cost from the bundle's networks (on whatever device they are).
 
     Args:
@@ -52,6 +53,8 @@ def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None =
             ``bundle_skills(bundle)``.
         guard: ``"reach"`` penalises each step by the bundle's reach (:func:`pasta.plan.reach.reach_penalty` with
             ``reach_softness``); ``"none"``: no penalty.
+        planar_skills: the skills whose reach guard limits the horizontal distance as one (their tool moves
+            along x and z); the others are limited along each axis.
     """
     specs = tuple(skills) if skills is not None else bundle_skills(bundle)
     names = tuple(dict.fromkeys(s.name for s in specs))
@@ -74,7 +77,8 @@ def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None =
                              "without; train it again (`pasta train` resumes and measures it) or plan with "
                              "plan.guard=none")
         reach = [bundle.reach[bundle.skill_index(spec.name)] for spec in specs]
-        penalty = reach_penalty(reach, bundle.prior.latent_dim, reach_softness)
+        penalty = reach_penalty(reach, bundle.prior.latent_dim, reach_softness,
+                                [spec.name in planar_skills for spec in specs])
     return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost, penalty)
 
 

@@ -125,7 +125,8 @@ def plan(bundle: TrainedModels, obs: torch.Tensor, goal: torch.Tensor, horizon: 
     bundle.to(device)
     with frozen_parameters(bundle):
         functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
-                                     guard=settings.guard, reach_softness=settings.reach_softness)
+                                     guard=settings.guard, reach_softness=settings.reach_softness,
+                                     planar_skills=settings.planar_skills)
         result = plan_with(functions, obs, goal, horizon, settings, device, skill_sequences)
     return Plan(result.skills, result.attention, result.latent_sets, result.feasibilities, result.cost,
                 result.score, time.perf_counter() - started, result.penalties)

@@ -76,7 +76,8 @@ def plan_receding_horizon(bundle: TrainedModels, obs: torch.Tensor, goal: torch.
     bundle.to(device)
     with frozen_parameters(bundle):
         functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
-                                     guard=settings.guard, reach_softness=settings.reach_softness)
+                                     guard=settings.guard, reach_softness=settings.reach_softness,
+                                     planar_skills=settings.planar_skills)
         result = plan_receding_horizon_with(functions, obs, goal, skill_sequence, window, settings, device)
     return Plan(result.skills, result.attention, result.latent_sets, result.feasibilities, result.cost,
                 result.score, time.perf_counter() - started, result.penalties)

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pasta.config.schema import PLAN_COSTS as COSTS
 from pasta.config.schema import PLAN_GUARDS as GUARDS
 from pasta.config.schema import TaskConfig
+from pasta.plan.reach import planar_skills
 
 __all__ = ["COSTS", "DEFAULT_HALVING", "GUARDS", "PlanSettings"]
 
@@ -37,6 +38,8 @@ class PlanSettings:
         guard: ``"none"`` or ``"reach"`` (each skill's outputs kept within its training reach,
             :mod:`pasta.plan.reach`).
         reach_softness: how far beyond the reach the guard's factor falls to ``exp(-1)``.
+        planar_skills: the skills whose reach guard limits the horizontal distance as one, not x and z apart
+            (:func:`pasta.plan.reach.planar_skills`).
     """
 
     lr: float
@@ -52,6 +55,7 @@ class PlanSettings:
     cost_points: int = 64
     guard: str = "none"
     reach_softness: float = 0.02
+    planar_skills: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:
         if self.lr <= 0:
@@ -83,12 +87,14 @@ class PlanSettings:
     def from_config(cls, cfg: TaskConfig, *, halving: tuple[float, ...] = DEFAULT_HALVING, seed: int = 0
                     ) -> PlanSettings:
         """Table 3's lr, iterations, samples and ``cfg.plan``'s cost; ``cfg.plan.alpha``, by default the official
-        code's 10 for CutRearrange and 100 otherwise."""
+        code's 10 for CutRearrange and 100 otherwise; with ``cfg.plan.reach_frame`` ``"tool"``, the skills whose
+        tool moves along x and z are guarded in the horizontal plane."""
         alpha = cfg.plan.alpha if cfg.plan.alpha is not None else 10.0 if cfg.task == "CutRearrange" else 100.0
         return cls(lr=cfg.plan.lr, iterations=cfg.plan.iterations, samples=cfg.plan.samples,
                    alpha=alpha, seed=seed, halving=halving,
                    cost=cfg.plan.cost, cost_points=cfg.plan.cost_points, guard=cfg.plan.guard,
-                   reach_softness=cfg.plan.reach_softness)
+                   reach_softness=cfg.plan.reach_softness,
+                   planar_skills=planar_skills(cfg) if cfg.plan.reach_frame == "tool" else frozenset())
 
     def halving_iterations(self) -> frozenset[int]:
         """Iterations (0-based) after whose step the worse half is dropped; never the last one."""

@@ -12,7 +12,7 @@ import torch
 from pasta.config import load
 from pasta.models.latent_prior import LatentPrior
 from pasta.plan import PlanningFunctions, PlanSettings, SkillSpec, bundle_functions, plan_with
-from pasta.plan.reach import output_displacements, reach_penalty, skill_reach
+from pasta.plan.reach import output_displacements, planar_skills, reach_penalty, skill_reach
 from pasta.train.bundle import load_trained, save_trained, untrained
 from tests.models.synthetic import tiny_model_config
 
@@ -48,6 +48,32 @@ def test_the_penalty_is_zero_within_the_reach_and_grows_beyond_it():
     torch.testing.assert_close(penalty(1, inputs, outputs), torch.zeros(3))  # nan: unguarded
     with pytest.raises(ValueError, match="softness must be > 0, got 0"):
         reach_penalty([(0.1, 0.1, 0.1)], latent_dim=2, softness=0.0)
+
+
+def test_a_planar_skill_is_limited_in_horizontal_distance_by_its_larger_horizontal_reach():
+    """CRS's push at small reached x 0.385 and z 0.202 in its demonstrations; a test problem needs (-0.252, -0.308).
+    Per axis that is 0.106 beyond z's reach; in the plane it is 0.398 against 0.385."""
+    reach = [(0.385, 0.004, 0.202)]
+    inputs = torch.tensor([[[0.0, 0.0, 0.5, 0.1, 0.5]]]).expand(3, 1, 5)
+    outputs = torch.tensor([[[0.0, 0.0, 0.248, 0.1, 0.192]],  # the test problem's push
+                            [[0.0, 0.0, 0.0, 0.1, 0.5]],  # 0.5 along x: beyond either way
+                            [[0.0, 0.0, 0.5, 0.12, 0.5]]])  # 0.02 up: y keeps its own reach
+    per_axis = reach_penalty(reach, latent_dim=2, softness=0.02)(0, inputs, outputs)
+    planar = reach_penalty(reach, latent_dim=2, softness=0.02, planar=[True])(0, inputs, outputs)
+    horizontal = math.hypot(0.252, 0.308)
+    torch.testing.assert_close(per_axis, torch.tensor([(0.106 / 0.02) ** 2, (0.115 / 0.02) ** 2, 0.8 ** 2]),
+                               rtol=1e-3, atol=1e-3)
+    torch.testing.assert_close(planar, torch.tensor([((horizontal - 0.385) / 0.02) ** 2, (0.115 / 0.02) ** 2,
+                                                     0.8 ** 2]), rtol=1e-3, atol=1e-3)
+    with pytest.raises(ValueError, match="planar has 2 values for 1 skills"):
+        reach_penalty(reach, latent_dim=2, softness=0.02, planar=[True, False])
+
+
+def test_the_tools_that_move_along_x_and_z_make_their_skills_planar():
+    assert planar_skills(load("CRS", "small")) == {"push", "spread"}  # the knife moves along x only
+    assert planar_skills(load("CutRearrange", "small")) == {"rearrange"}
+    assert PlanSettings.from_config(load("CRS", "small")).planar_skills == {"push", "spread"}
+    assert PlanSettings.from_config(load("CRS", "small", ["plan.reach_frame=axes"])).planar_skills == frozenset()
 
 
 def _exploitable_problem() -> tuple[PlanningFunctions, torch.Tensor, torch.Tensor]:
