@@ -82,17 +82,18 @@ def reach_penalty(reach: Sequence[Sequence[float]], latent_dim: int, softness: f
     if len(flat) != len(reach):
         raise ValueError(f"planar has {len(flat)} values for {len(reach)} skills")
 
-    limits = [None if any(math.isnan(v) for v in r) else torch.tensor(r, dtype=torch.float32) for r in reach]
+    # Per skill: None (unguarded), or its limits, (horizontal, y) for a planar skill and (x, y, z) otherwise.
+    limits = [None if any(math.isnan(v) for v in r)
+              else torch.tensor([max(r[0], r[2]), r[1]] if planar_skill else list(r), dtype=torch.float32)
+              for r, planar_skill in zip(reach, flat, strict=True)]
 
     def penalty(skill: int, inputs: torch.Tensor, outputs: torch.Tensor) -> torch.Tensor:
         limit = limits[skill]
         if limit is None:
             return inputs.new_zeros(inputs.shape[0])
         displacement = output_displacements(inputs[..., latent_dim:], outputs[..., latent_dim:])
-        limit = limit.to(inputs)
         if flat[skill]:
             displacement = torch.stack([displacement[..., [0, 2]].norm(dim=-1), displacement[..., 1]], dim=-1)
-            limit = torch.stack([limit[[0, 2]].max(), limit[1]])
-        return ((displacement - limit).clamp_min(0.0) / softness).pow(2).sum(dim=(-1, -2))
+        return ((displacement - limit.to(inputs)).clamp_min(0.0) / softness).pow(2).sum(dim=(-1, -2))
 
     return penalty
