@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from pasta.config.schema import TaskConfig
+from pasta.config.schema import DecodedEntityWeights, TaskConfig
 from pasta.data.configurations import EvaluationProblem, oracle_chain
 from pasta.evaluate.encoding import EncodedScene
 from pasta.evaluate.execution import decode_set
@@ -169,17 +169,19 @@ def diagnostics_row(diagnostics: PlanDiagnostics | None) -> dict[str, Any]:
 
 
 def diagnose(plan: Plan, truth: GroundTruthPlan, functions: PlanningFunctions, settings: PlanSettings,
-             goal: torch.Tensor, decode: Decoder, seed: int) -> PlanDiagnostics:
+             goal: torch.Tensor, decode: Decoder, seed: int, weights: DecodedEntityWeights = "volume"
+             ) -> PlanDiagnostics:
     """Compare ``plan`` with ``truth`` under the planner's ``functions`` and ``settings``.
 
     Args:
         goal: ``(K_g, D_z + 3)`` the goal entities the plan was made for, on the device of ``functions``.
         decode: latents ``(K, D_z + 3)`` -> decoded clouds ``(K, M, 3)``.
         seed: subsamples the clouds of the EMDs.
+        weights: how each decoded subgoal set becomes one cloud (:func:`pasta.evaluate.metrics.planned_goal_distance`).
     """
     mapped = attention_in_ground_truth(plan, truth, functions.prior.latent_dim)
     same_length = len(plan.attention) == len(truth.attention)
-    subgoal_emd = tuple(planned_goal_distance(decode(u), stage, seed)
+    subgoal_emd = tuple(planned_goal_distance(decode(u), stage, seed, weights)
                         for u, stage in zip(plan.latent_sets[1:], truth.stages, strict=False))
     return PlanDiagnostics(
         ground_truth_skills=truth.skills,
@@ -207,4 +209,5 @@ def diagnose_learned_plan(cfg: TaskConfig, bundle: TrainedModels, problem: Evalu
         functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
                                      guard=settings.guard, reach_softness=settings.reach_softness,
                                      planar_skills=settings.planar_skills)
-        return diagnose(plan, truth, functions, settings, goal.to(device), partial(decode_set, bundle), seed)
+        return diagnose(plan, truth, functions, settings, goal.to(device), partial(decode_set, bundle), seed,
+                        cfg.eval.decoded_entity_weights)

@@ -22,16 +22,39 @@ def test_planned_goal_distance_stacks_the_entities_and_matches_the_slow_emd(seed
     decoded = rng.uniform(size=(2, 3, 3))  # two decoded entities of 3 points
     goal = rng.uniform(size=(6, 3))
     expected = brute_force_emd(decoded.reshape(-1, 3), goal)
-    assert planned_goal_distance(decoded, goal, seed) == pytest.approx(expected, rel=1e-9)
+    assert planned_goal_distance(decoded, goal, seed, weights="equal") == pytest.approx(expected, rel=1e-9)
 
 
 def test_planned_goal_distance_subsamples_the_larger_cloud():
     rng = np.random.default_rng(4)
     goal = rng.uniform(size=(5, 3))
     decoded = np.stack([goal, goal + 10.0])  # 10 points, 5 of them exactly on the goal
-    distance = planned_goal_distance(decoded, goal, seed=0)
+    distance = planned_goal_distance(decoded, goal, seed=0, weights="equal")
     reference = np.random.default_rng(0).choice(10, 5, replace=False)
     assert distance == pytest.approx(brute_force_emd(decoded.reshape(-1, 3)[reference], goal), rel=1e-9)
+
+
+def _box(rng: np.random.Generator, low, size, n: int) -> np.ndarray:
+    return np.asarray(low) + rng.uniform(size=(n, 3)) * np.asarray(size)
+
+
+def test_a_goal_of_uneven_pieces_comes_back_close_only_when_each_piece_keeps_its_share_of_the_mass():
+    rng = np.random.default_rng(0)
+    # A CRS-like goal: a block and a flat sheet with a quarter of its volume, particles of equal mass.
+    block = _box(rng, (0.2, 0.0, 0.4), (0.1, 0.08, 0.1), 800)
+    sheet = _box(rng, (0.6, 0.0, 0.4), (0.2, 0.01, 0.1), 200)
+    goal = np.concatenate([block, sheet])
+    decoded = np.stack([_box(rng, (0.2, 0.0, 0.4), (0.1, 0.08, 0.1), 1000),
+                        _box(rng, (0.6, 0.0, 0.4), (0.2, 0.01, 0.1), 1000)])
+    weighted = planned_goal_distance(decoded, goal, seed=0)
+    stacked = planned_goal_distance(decoded, goal, seed=0, weights="equal")
+    assert stacked > 0.1  # 30 % of the mass sent 0.45 across
+    assert weighted < 0.02
+
+
+def test_planned_goal_distance_rejects_an_unknown_weighting():
+    with pytest.raises(ValueError, match="'mass'"):
+        planned_goal_distance(np.zeros((1, 4, 3)), np.zeros((4, 3)), seed=0, weights="mass")
 
 
 def test_shape_distance_is_the_slow_emd_against_the_first_target_points():
