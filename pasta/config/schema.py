@@ -235,11 +235,6 @@ class DataConfig(Frozen):
     # to this many aims of its destination from the same state, and the one ending nearest its subgoal is
     # recorded. 1: the script alone, as the official heuristics.
     aim_search_rollouts: int = Field(default=1, ge=1)
-    # How a decoded latent set becomes one cloud for the EMDs of planned goals and subgoals: "volume", each
-    # entity holding its convex hull's share of the points (the dough's particles all weigh the same);
-    # "equal", the entities stacked at the decoder's M points each, as the official decoding stacks them,
-    # which on CRS's uneven cuts alone puts the goal's own pieces 0.013-0.099 from the goal.
-    decoded_entity_weights: DecodedEntityWeights = "volume"
 
 
 class TrainConfig(Frozen):
