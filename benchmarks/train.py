@@ -10,6 +10,7 @@ table with the load average before and after and writes JSON to ``benchmarks/res
     python benchmarks/train.py            # 5 timed steps per model
     python benchmarks/train.py --quick    # 2 timed steps per model
     python benchmarks/train.py --models policy,vae --precision fp32,bf16
+    python benchmarks/train.py --models policy --heap-pad on,off   # with and without the heap top pad
     python benchmarks/train.py --device cuda   # on a GPU (writes train_cuda.json; peak GPU memory too)
 """
 
@@ -127,13 +128,18 @@ def matmul_rate(threads: int, dtype_name: str, device: str = "cpu", size: int = 
     return 2 * size**3 * repeats / (time.perf_counter() - start) / 1e9
 
 
-def measure(name: str, steps: int, threads: int, device: str = "cpu", precision: str = "fp32") -> dict:
+def measure(name: str, steps: int, threads: int, device: str = "cpu", precision: str = "fp32",
+            heap_pad: str = "on") -> dict:
     import torch
+
+    from pasta.train.allocator import keep_freed_memory
 
     if name == "matmul":
         return {"model": "matmul", "precision": precision, "threads": threads,
                 "gflop_per_s": matmul_rate(threads, precision, device)}
     torch.set_num_threads(threads)
+    if heap_pad == "on":  # as `pasta train` does
+        keep_freed_memory()
     cuda = device.startswith("cuda")
 
     def sync() -> None:
@@ -149,7 +155,8 @@ def measure(name: str, steps: int, threads: int, device: str = "cpu", precision:
         step()
     sync()
     seconds = (time.perf_counter() - start) / steps
-    return {"model": name, "precision": precision, "device": device, "threads": threads, "steps": steps,
+    return {"model": name, "precision": precision, "heap_pad": heap_pad, "device": device, "threads": threads,
+            "steps": steps,
             "s_per_step": seconds,
             "samples_per_step": samples, "samples_per_s": samples / seconds, "sample": unit,
             "rss_before_mb": baseline, "peak_rss_mb": peak_rss_mb(),
@@ -163,16 +170,21 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     parser.add_argument("--models", default=",".join(MODELS), help="comma-separated subset of " + ", ".join(MODELS))
     parser.add_argument("--precision", default="fp32,bf16", help="comma-separated: fp32, bf16")
-    parser.add_argument("--child", nargs=4, metavar=("MODEL", "STEPS", "THREADS", "PRECISION"),
+    parser.add_argument("--heap-pad", default="on",
+                        help="comma-separated: on (glibc heap top pad, as training sets it; "
+                             "pasta/train/allocator.py), off")
+    parser.add_argument("--child", nargs=5, metavar=("MODEL", "STEPS", "THREADS", "PRECISION", "HEAP_PAD"),
                         help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        name, steps, threads, precision = args.child
-        print(json.dumps(measure(name, int(steps), int(threads), args.device, precision)))
+        name, steps, threads, precision, heap_pad = args.child
+        print(json.dumps(measure(name, int(steps), int(threads), args.device, precision, heap_pad)))
         return
     models = [m for m in args.models.split(",") if m]
     precisions = [p for p in args.precision.split(",") if p]
-    for value, known, what in ((models, MODELS, "model"), (precisions, ("fp32", "bf16"), "precision")):
+    pads = [p for p in args.heap_pad.split(",") if p]
+    for value, known, what in ((models, MODELS, "model"), (precisions, ("fp32", "bf16"), "precision"),
+                               (pads, ("on", "off"), "heap pad")):
         unknown = sorted(set(value) - set(known))
         if unknown:
             parser.error(f"unknown {what} {unknown}; known: {', '.join(known)}")
@@ -180,24 +192,26 @@ def main() -> None:
     load_before = load_average()
     rows, reference = [], {}
     for precision in precisions:
-        out = subprocess.run([sys.executable, __file__, "--child", "matmul", "0", str(args.threads), precision,
+        out = subprocess.run([sys.executable, __file__, "--child", "matmul", "0", str(args.threads), precision, "on",
                               "--device", args.device], capture_output=True, text=True, check=True)
         reference[precision] = json.loads(out.stdout.strip().splitlines()[-1])["gflop_per_s"]
         for name in models:
-            out = subprocess.run([sys.executable, __file__, "--child", name, str(steps), str(args.threads), precision,
-                                  "--device", args.device], capture_output=True, text=True, check=True)
-            rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
-            print(f"measured {name} {precision}", file=sys.stderr)
+            for pad in pads:
+                out = subprocess.run([sys.executable, __file__, "--child", name, str(steps), str(args.threads),
+                                      precision, pad, "--device", args.device], capture_output=True, text=True,
+                                     check=True)
+                rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+                print(f"measured {name} {precision} heap pad {pad}", file=sys.stderr)
     load_after = load_average()
     print(f"\n{args.device}, {args.threads} torch threads, {steps} timed steps per model, {os.cpu_count()} CPUs, "
           f"load average {load_before} -> {load_after}")
     print("matmul 1024^3: " + ", ".join(f"{p} {g:.0f} GFLOP/s" for p, g in reference.items()) + "\n")
-    print("| model | precision | s/step | samples/step | samples/s | peak RSS MB (before build) | peak GPU MB "
-          "| sample |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| model | precision | heap pad | s/step | samples/step | samples/s | peak RSS MB (before build) "
+          "| peak GPU MB | sample |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         gpu = "—" if r["peak_gpu_mb"] is None else f"{r['peak_gpu_mb']:.0f}"
-        print(f"| {r['model']} | {r['precision']} | {r['s_per_step']:.3f} | {r['samples_per_step']} "
+        print(f"| {r['model']} | {r['precision']} | {r['heap_pad']} | {r['s_per_step']:.3f} | {r['samples_per_step']} "
               f"| {r['samples_per_s']:.1f} | {r['peak_rss_mb']:.0f} ({r['rss_before_mb']:.0f}) | {gpu} "
               f"| {r['sample']} |")
     RESULTS.mkdir(exist_ok=True)

@@ -35,6 +35,7 @@ from pasta.config import load
 from pasta.config.schema import TaskConfig
 from pasta.models import ModelConfig, variant_spec
 from pasta.paths import checkpoint_dir, data_dir
+from pasta.train.allocator import keep_freed_memory
 from pasta.train.bundle import save_trained
 from pasta.train.dagger import dagger_metrics
 from pasta.train.datasets import vae_clouds
@@ -121,6 +122,7 @@ def train(task_name: str, profile: str = "smoke", variant: str = "pasta", method
     whole_scene = variant_spec(variant).whole_scene_latent
     folder = dataset_folder(cfg.task, profile, method)
     chosen_device = training_device(device)
+    keep_freed_memory()  # the next step reuses this step's pages (pasta/train/allocator.py)
     started, started_at = time.perf_counter(), time.time()  # the run covers reading the data too
     data = load_training_data(cfg, folder, whole_scene=whole_scene, seed=seed,
                               entity_points=sizes.vae.n_decoded_points)

@@ -28,6 +28,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from pasta.models.group_max import linear_group_max
 from pasta.models.layers import mlp
 
 __all__ = [
@@ -107,14 +108,16 @@ def farthest_point_sample(
     farthest = _start_indices(start, batch_size, n_points, points.device)
     with torch.no_grad(), _one_torch_thread():
         planes = points.detach().permute(2, 0, 1).contiguous()  # (3, B, N)
-        chosen = torch.empty(n_samples, batch_size, dtype=torch.long, device=points.device)
+        chosen = [farthest]
         min_sq = torch.full((batch_size, n_points), float("inf"), dtype=points.dtype, device=points.device)
-        for i in range(n_samples):
-            chosen[i] = farthest
+        offsets, sq = torch.empty_like(planes), torch.empty_like(min_sq)  # reused: no allocation per sample
+        for _ in range(n_samples - 1):
             last = planes.gather(2, farthest.view(1, -1, 1).expand(3, -1, 1))  # (3, B, 1)
-            torch.minimum(min_sq, (planes - last).square_().sum(dim=0), out=min_sq)
+            torch.sum(torch.sub(planes, last, out=offsets).square_(), dim=0, out=sq)
+            torch.minimum(min_sq, sq, out=min_sq)
             farthest = min_sq.argmax(dim=1)  # first maximal index on ties
-    return chosen.t().contiguous()
+            chosen.append(farthest)
+    return torch.stack(chosen, dim=1)
 
 
 def ball_query(points: torch.Tensor, centres: torch.Tensor, radius: float, max_neighbours: int) -> torch.Tensor:
@@ -142,8 +145,11 @@ def ball_query(points: torch.Tensor, centres: torch.Tensor, radius: float, max_n
     k = min(max_neighbours, n_points)
     with torch.no_grad():
         sq = torch.cdist(centres.detach(), points.detach(), compute_mode="donot_use_mm_for_euclid_dist").square_()
-        order = torch.arange(n_points, dtype=torch.int32, device=points.device)
-        keys = torch.where(sq < radius**2, order, n_points)  # (B, S, N): index when within, else N
+        # The narrowest integer that holds N: selecting and sorting the keys is memory-bound.
+        key_dtype = torch.int16 if n_points < torch.iinfo(torch.int16).max else torch.int32
+        order = torch.arange(n_points, dtype=key_dtype, device=points.device)
+        outside = torch.tensor(n_points, dtype=key_dtype, device=points.device)
+        keys = torch.where(sq < radius**2, order, outside)  # (B, S, N): index when within, else N
         first = keys.topk(k, dim=-1, largest=False, sorted=True).values.long()  # (B, S, K) lowest indices
         lonely = first[..., 0] == n_points  # (B, S): no point within the radius
         if bool(lonely.any()):
@@ -167,7 +173,8 @@ def _mlp_max(pre: torch.Tensor, layers: Sequence[nn.Linear], n_members: int) -> 
     Rows are member-major: row ``g * M + m`` is member ``g`` of group ``m``. Every layer works on 2-D
     contiguous rows, and the hidden ReLUs run in place (no layer's backward needs its own output).
     Two exact reorderings move work from ``G * M`` rows to ``M``: the last layer's bias is added after
-    the max (``max_g(W a_g) + b``), and so is the last ReLU, which commutes with the max.
+    the max (``max_g(W a_g) + b``), and so is the last ReLU, which commutes with the max. The last layer
+    and the max are one ``linear_group_max``, whose backward pass touches only each group's winners.
 
     Args:
         pre: ``(G * M, C_1)`` pre-activations of the MLP's first layer, bias included.
@@ -183,7 +190,7 @@ def _mlp_max(pre: torch.Tensor, layers: Sequence[nn.Linear], n_members: int) -> 
     out = pre
     for layer in hidden:
         out = F.linear(out.relu_(), layer.weight, layer.bias)
-    return (_group_max(torch.mm(out.relu_(), last.weight.t()), n_members) + last.bias).relu()
+    return (linear_group_max(out.relu_(), last.weight, n_members) + last.bias).relu()
 
 
 def _member_major_rows(neighbours: torch.Tensor, n_points: int) -> torch.Tensor:

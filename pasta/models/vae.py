@@ -19,6 +19,7 @@ from torch import nn
 
 from pasta.geometry.distances import chamfer_distance
 from pasta.models import random_draws
+from pasta.models.group_max import linear_group_max
 from pasta.models.layers import mlp
 
 __all__ = ["PointCloudVAE", "VAEConfig"]
@@ -55,7 +56,9 @@ class PointCloudVAE(nn.Module):
 
     The encoder is a PointNet: per-point MLP ``3 -> 128 -> 256 -> 512`` (ReLU between layers), max over
     points, then two heads ``512 -> 256 -> D_z`` for the mean and the log-variance. There is no batch
-    normalisation, so an entity's code does not depend on the other clouds in its batch.
+    normalisation, so an entity's code does not depend on the other clouds in its batch. The last layer
+    and the max run as one ``linear_group_max`` (its bias added after the max), whose backward pass
+    touches only the point that wins each channel.
     """
 
     scale: torch.Tensor
@@ -94,7 +97,11 @@ class PointCloudVAE(nn.Module):
 
     def encode_shape(self, shape: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Normalised shapes ``(B, N, 3)`` -> ``(z_mean (B, D_z), z_logvar (B, D_z))``."""
-        pooled = self.point_net(shape).max(dim=1).values  # (B, 512)
+        *hidden, last = self.point_net
+        rows = shape.transpose(0, 1).reshape(-1, 3)  # (N * B, 3) point-major: B groups of N members
+        for layer in hidden:
+            rows = layer(rows)
+        pooled = linear_group_max(rows, last.weight, shape.shape[1]) + last.bias  # (B, 512)
         return self.mean_head(pooled), self.logvar_head(pooled)
 
     def encode(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -82,6 +82,24 @@ def test_chamfer_gradcheck_float64():
     assert torch.autograd.gradcheck(lambda x, y: chamfer_distance(x, y), (a, b), eps=1e-6, atol=1e-6)
 
 
+def test_chamfer_gradient_path_matches_the_dense_minimum():
+    # With a gradient the distance is taken on nearest-neighbour pairs; without, from the distance blocks.
+    rng = np.random.default_rng(4)
+    a = torch.from_numpy(rng.random((3, 30, 3))).requires_grad_(True)
+    b = torch.from_numpy(rng.random((3, 25, 3))).requires_grad_(True)
+    probe = torch.tensor([0.3, -1.2, 2.0], dtype=torch.float64)
+    (chamfer_distance(a, b) * probe).sum().backward()
+    grads = a.grad.clone(), b.grad.clone()
+    a.grad, b.grad = None, None
+    sq = torch.cdist(a, b).square()
+    dense = sq.min(dim=2).values.mean(dim=1) + sq.min(dim=1).values.mean(dim=1)
+    (dense * probe).sum().backward()
+    torch.testing.assert_close(grads[0], a.grad, rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(grads[1], b.grad, rtol=1e-10, atol=1e-12)
+    with torch.no_grad():
+        torch.testing.assert_close(chamfer_distance(a, b), dense.detach(), rtol=1e-10, atol=1e-12)
+
+
 def test_chamfer_gradient_finite_float32_including_identical_clouds():
     rng = np.random.default_rng(3)
     a = torch.from_numpy(rng.random((2, 100, 3)).astype(np.float32)).requires_grad_(True)

@@ -64,3 +64,23 @@ def test_training_lowers_the_loss_on_random_boxes():
     vae.fit_scale(points)
     first, last = train(lambda: vae.elbo_loss(points, torch.Generator().manual_seed(0))[0], vae.parameters(), lr=3e-3)
     assert last < 0.5 * first
+
+
+def test_encoder_matches_the_plain_mlp_and_max_with_gradients():
+    gen = torch.Generator().manual_seed(5)
+    vae = PointCloudVAE(VAEConfig(encoder_channels=(16, 24, 32), head_hidden=8, n_decoded_points=20)).double()
+    shape = torch.randn(3, 40, 3, generator=gen, dtype=torch.float64)
+
+    def mean_and_gradients(encode):
+        vae.zero_grad()
+        z_mean, z_logvar = encode()
+        (z_mean.sum() + 0.5 * z_logvar.sum()).backward()
+        return z_mean.detach(), {name: p.grad.clone() for name, p in vae.named_parameters() if p.grad is not None}
+
+    fast, fast_grads = mean_and_gradients(lambda: vae.encode_shape(shape))
+    pooled = lambda: vae.point_net(shape).max(dim=1).values  # noqa: E731
+    plain, plain_grads = mean_and_gradients(lambda: (vae.mean_head(pooled()), vae.logvar_head(pooled())))
+    torch.testing.assert_close(fast, plain, rtol=1e-12, atol=1e-12)
+    assert fast_grads.keys() == plain_grads.keys() and "point_net.4.weight" in fast_grads
+    for name, grad in fast_grads.items():
+        torch.testing.assert_close(grad, plain_grads[name], rtol=1e-10, atol=1e-12, msg=name)
