@@ -16,6 +16,7 @@ from pasta.models import (
     restore_models,
     save_checkpoint,
 )
+from pasta.models.cloud_pointnet import CloudPointNetConfig
 from tests.models.synthetic import box_clouds, goal_offset_problem, tiny_model_config, train
 
 COMPACT = PolicyConfig(point_encoder="pointnet")
@@ -120,3 +121,28 @@ def test_the_option_switches_both_point_cloud_policies_and_they_train(variant, n
     first, last = train(lambda: (policy(*inputs) - action).square().sum(-1).mean(), policy.parameters(), steps=40,
                         lr=1e-3)
     assert last < 0.5 * first
+
+
+def test_pooling_matches_the_plain_mlp_and_max_with_gradients():
+    gen = torch.Generator().manual_seed(21)
+    encoder = CloudPointNet(2, CloudPointNetConfig(channels=(8, 16, 12))).double()
+    clouds = [torch.randn(3, n, 3, generator=gen, dtype=torch.float64) for n in (30, 7)]
+    encoder.fit_normalisation(*clouds)
+    probe = torch.randn(3, encoder.out_dim, generator=gen, dtype=torch.float64)
+
+    def output_and_gradients(encode):
+        encoder.zero_grad()
+        out = encode()
+        (out * probe).sum().backward()
+        return out.detach(), {name: p.grad.clone() for name, p in encoder.named_parameters()}
+
+    def plain():
+        pooled = [net((cloud - encoder.centre) / encoder.scale).max(dim=1).values
+                  for net, cloud in zip(encoder.nets, clouds, strict=True)]
+        return torch.cat(pooled, dim=-1)
+
+    fast, fast_grads = output_and_gradients(lambda: encoder(*clouds))
+    ref, ref_grads = output_and_gradients(plain)
+    torch.testing.assert_close(fast, ref, rtol=1e-12, atol=1e-12)
+    for name, grad in fast_grads.items():
+        torch.testing.assert_close(grad, ref_grads[name], rtol=1e-10, atol=1e-12, msg=name)
