@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from pasta.models.group_max import linear_group_max
+from pasta.models.group_max import mlp_max_over_points
 from pasta.models.layers import mlp, orthogonal_init_
 
 __all__ = ["CloudPointNet", "CloudPointNetConfig"]
@@ -91,16 +91,11 @@ class CloudPointNet(nn.Module):
     def _pool(self, net: nn.Sequential, cloud: torch.Tensor) -> torch.Tensor:
         """``net`` on every normalised point of ``cloud (B, N, 3)``, max over the points: ``(B, C)``.
 
-        The MLP runs on 2-D rows ``(N * B, 3)``, point-major: a Linear on a 3-D input works on a view of its
-        output, and the in-place ReLU on that view costs a copy in backward. The last layer and the max are
-        one ``linear_group_max`` (backward through each channel's winning point only); its bias and ReLU,
-        which commute with the max, follow it.
+        ``mlp_max_over_points`` runs the MLP on 2-D rows (a Linear on a 3-D input works on a view of its
+        output, and the in-place ReLU on that view costs a copy in backward) and its last layer and the max
+        as one ``linear_group_max`` (backward through each channel's winning point only).
         """
-        *hidden, last, _ = net
-        rows = ((cloud - self.centre) / self.scale).transpose(0, 1).reshape(-1, 3)
-        for layer in hidden:
-            rows = layer(rows)
-        return (linear_group_max(rows, last.weight, cloud.shape[1]) + last.bias).relu()
+        return mlp_max_over_points(net, (cloud - self.centre) / self.scale)
 
     def _check(self, clouds: tuple[torch.Tensor, ...]) -> None:
         if len(clouds) != len(self.nets):

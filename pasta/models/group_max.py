@@ -22,8 +22,9 @@ from __future__ import annotations
 import warnings
 
 import torch
+from torch import nn
 
-__all__ = ["linear_group_max"]
+__all__ = ["linear_group_max", "mlp_max_over_points"]
 
 
 class _LinearGroupMax(torch.autograd.Function):
@@ -83,3 +84,19 @@ def linear_group_max(x: torch.Tensor, weight: torch.Tensor, n_members: int) -> t
     if n_members < 1 or x.shape[0] % n_members:
         raise ValueError(f"{x.shape[0]} rows do not split into groups of {n_members} members")
     return _LinearGroupMax.apply(x, weight, n_members)
+
+
+def mlp_max_over_points(net: nn.Sequential, points: torch.Tensor) -> torch.Tensor:
+    """A per-point MLP (``pasta.models.layers.mlp``) max-pooled over each cloud's points, ``(B, N, C_in)`` ->
+    ``(B, C_out)``, with its last layer and the max as one ``linear_group_max``.
+
+    The last layer's bias, and a final ReLU if ``net`` ends with one, commute with the max and follow it.
+    The layers before run on 2-D point-major rows ``(N * B, C)`` (B groups of N members).
+    """
+    *layers, final = net
+    last, activation = (layers.pop(), final) if isinstance(final, nn.ReLU) else (final, None)
+    rows = points.transpose(0, 1).reshape(-1, points.shape[-1])
+    for layer in layers:
+        rows = layer(rows)
+    pooled = linear_group_max(rows, last.weight, points.shape[1]) + last.bias
+    return pooled.relu() if activation is not None else pooled

@@ -19,7 +19,7 @@ from torch import nn
 
 from pasta.geometry.distances import chamfer_distance
 from pasta.models import random_draws
-from pasta.models.group_max import linear_group_max
+from pasta.models.group_max import mlp_max_over_points
 from pasta.models.layers import mlp
 
 __all__ = ["PointCloudVAE", "VAEConfig"]
@@ -97,11 +97,7 @@ class PointCloudVAE(nn.Module):
 
     def encode_shape(self, shape: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Normalised shapes ``(B, N, 3)`` -> ``(z_mean (B, D_z), z_logvar (B, D_z))``."""
-        *hidden, last = self.point_net
-        rows = shape.transpose(0, 1).reshape(-1, 3)  # (N * B, 3) point-major: B groups of N members
-        for layer in hidden:
-            rows = layer(rows)
-        pooled = linear_group_max(rows, last.weight, shape.shape[1]) + last.bias  # (B, 512)
+        pooled = mlp_max_over_points(self.point_net, shape)  # (B, 512)
         return self.mean_head(pooled), self.logvar_head(pooled)
 
     def encode(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
