@@ -280,6 +280,12 @@ class TrainConfig(Frozen):
     # before a cut separates the pieces does not show where the cut goes, so the first steps' labels are
     # unpredictable from it.
     policy_hindsight_ratio: float = Field(default=0.5, ge=0.0, le=1.0)
+    # Entity filtering (appendix 1.5) drops every observed entity within the filter's Chamfer of a goal entity.
+    # A skill that changes its one entity a little (a spread whose target is 0.0002 in squared Chamfer from its
+    # start, 9 of LiftSpread's 20 small spreads) then leaves nothing, and the sample is dropped from the
+    # feasibility positives and the policy samples alike. True: keep the observed entity farthest from its
+    # nearest goal entity, and that goal entity. False (the official): drop the sample.
+    filter_keeps_acted: bool = False
     # DAgger rounds after the policies' own loop (pasta/train/dagger.py; 0: none, the appendix's behaviour
     # cloning alone): each runs the oracle chains of dagger_problems fresh problems with the current policies
     # (the expert's action chunk instead at a share dagger_expert_share of the calls), labels every visited
@@ -360,6 +366,12 @@ class PolicyNetConfig(Frozen):
     # Points of the observation and goal clouds a policy sees, in training and in execution (each cloud
     # resampled to this many; the tool keeps its surface points). [S] §3.1: 1000.
     points: int = Field(default=1000, ge=8)
+    # Skills whose set policy works in its goal's heading frame: the clouds turned about the vertical axis so
+    # that the goal lies along +x from the observed dough, the tool's horizontal action vectors turned back
+    # (pasta.models.policy.SetPolicy), so that a push in any direction is one push. Only skills whose tool is
+    # a box or a gripper moving along x and z; a named skill the task does not have is left alone (profiles
+    # serve every task). Empty (the appendix's): none.
+    heading_skills: tuple[Literal["cut", "push", "rearrange", "spread", "lift", "move", "gather"], ...] = ()
 
     @model_validator(mode="after")
     def _check_quantiles(self) -> PolicyNetConfig:
@@ -418,6 +430,14 @@ class TaskConfig(Frozen):
                 raise ValueError(f"skill {skill.name!r} names tool {skill.tool!r}; tools are {tool_names}")
             if skill.tool in static:
                 raise ValueError(f"skill {skill.name!r} uses static tool {skill.tool!r}; it cannot move")
+        tools = {t.name: t for t in self.tools}
+        for skill in self.skills:
+            tool = tools[skill.tool]
+            if skill.name in self.policy.heading_skills and not (
+                    tool.kind in ("box", "gripper") and tool.action_scales[0] > 0 and tool.action_scales[2] > 0):
+                raise ValueError(f"policy.heading_skills names {skill.name!r}, whose tool {tool.name!r} ({tool.kind}, "
+                                 f"action scales {tool.action_scales}) does not move along x and z as a box or a "
+                                 f"gripper does")
         unknown = sorted(set(self.eval.scripted_skills) - {s.name for s in self.skills})
         if unknown:
             raise ValueError(f"eval.scripted_skills names {unknown}; the task's skills are "

@@ -66,12 +66,14 @@ class ModelConfig:
                        tool_concat_policy=replace(self.tool_concat_policy, point_encoder=name))
 
     def with_policy_io(self, frame: str, phase_input: bool, chunk: int, shape_quantiles: int = 0,
-                       gap_features: bool = False) -> ModelConfig:
+                       gap_features: bool = False, heading_pairs: tuple[tuple[int, ...], ...] = ()) -> ModelConfig:
         """This config with the set policy's cloud frame (``world`` or ``dough``), phase input, actions per call,
-        shape quantiles and gap features (e.g. from the task config's ``policy.frame``, ``policy.phase_input``,
-        ``policy.chunk``, ``policy.shape_quantiles`` and ``policy.gap_features``)."""
+        shape quantiles, gap features and per-skill heading pairs (e.g. from the task config's ``policy.frame``,
+        ``policy.phase_input``, ``policy.chunk``, ``policy.shape_quantiles``, ``policy.gap_features`` and
+        ``policy.heading_skills``)."""
         return replace(self, policy=replace(self.policy, frame=frame, phase_input=phase_input, chunk=chunk,
-                                            shape_quantiles=shape_quantiles, gap_features=gap_features))
+                                            shape_quantiles=shape_quantiles, gap_features=gap_features,
+                                            heading_pairs=heading_pairs))
 
     def to_dict(self) -> dict[str, Any]:
         """Nested plain dict (tuples stay tuples)."""

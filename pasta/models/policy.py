@@ -45,6 +45,9 @@ __all__ = [
     "cloud_quantiles",
     "dough_frame",
     "encode_clouds",
+    "goal_heading",
+    "turn_actions",
+    "turn_clouds",
     "filter_entities",
     "point_encoder",
     "tag_point_roles",
@@ -121,6 +124,63 @@ def dough_frame(obs_points: torch.Tensor, *clouds: torch.Tensor) -> tuple[list[t
     shift = centre * centre.new_tensor([1.0, 0.0, 1.0])
     offsets = [(cloud.mean(dim=1) - centre[:, 0]) * CENTRE_OFFSET_SCALE for cloud in clouds]
     return [obs_points - shift, *(cloud - shift for cloud in clouds)], torch.cat(offsets, dim=-1)
+
+
+def goal_heading(obs_points: torch.Tensor, goal_points: torch.Tensor) -> torch.Tensor:
+    """The horizontal unit direction ``(B, 2)`` as ``(x, z)`` from the observation's centre to the goal's
+    (``policy.heading_skills``); ``(1, 0)`` where the two centres are closer than 1e-6 horizontally.
+
+    Args:
+        obs_points: ``(B, N_o, 3)``; goal_points: ``(B, N_g, 3)``.
+    """
+    offset = goal_points.mean(dim=1)[:, [0, 2]] - obs_points.mean(dim=1)[:, [0, 2]]
+    length = offset.norm(dim=1, keepdim=True)
+    fallback = offset.new_tensor([1.0, 0.0]).expand_as(offset)
+    return torch.where(length > 1e-6, offset / length.clamp_min(1e-6), fallback)
+
+
+def turn_clouds(heading: torch.Tensor, origin: torch.Tensor, *clouds: torch.Tensor) -> list[torch.Tensor]:
+    """Turn clouds about the vertical axis through ``origin`` so that ``heading`` becomes +x.
+
+    A point at horizontal offset ``(dx, dz)`` from the origin moves to ``(u . d, u_perp . d)`` with
+    ``u = heading`` and ``u_perp = (-u_z, u_x)``; heights are kept.
+
+    Args:
+        heading: ``(B, 2)`` unit ``(x, z)`` directions.
+        origin: ``(B, 3)``.
+        clouds: ``(B, N_i, 3)`` each.
+
+    Returns:
+        the turned clouds, same shapes.
+    """
+    ux, uz = heading[:, 0, None], heading[:, 1, None]
+    turned = []
+    for cloud in clouds:
+        dx = cloud[..., 0] - origin[:, 0, None]
+        dz = cloud[..., 2] - origin[:, 2, None]
+        turned.append(torch.stack([origin[:, 0, None] + ux * dx + uz * dz, cloud[..., 1],
+                                   origin[:, 2, None] - uz * dx + ux * dz], dim=-1))
+    return turned
+
+
+def turn_actions(actions: torch.Tensor, heading: torch.Tensor, pairs: Sequence[int], action_dim: int
+                 ) -> torch.Tensor:
+    """Turn the horizontal action vectors predicted in the heading frame back to the world: the inverse of
+    :func:`turn_clouds` applied to each ``(x, z)`` index pair of every step of a chunk.
+
+    Args:
+        actions: ``(B, chunk * action_dim)``.
+        heading: ``(B, 2)`` unit ``(x, z)`` directions.
+        pairs: flat ``(x_0, z_0, x_1, z_1, ...)`` indices into one step's action vector.
+        action_dim: one step's action length.
+    """
+    steps = actions.reshape(actions.shape[0], -1, action_dim)
+    ux, uz = heading[:, 0, None].to(actions.dtype), heading[:, 1, None].to(actions.dtype)
+    columns = list(steps.unbind(dim=-1))
+    for ix, iz in zip(pairs[0::2], pairs[1::2], strict=True):
+        ax, az = steps[..., ix], steps[..., iz]
+        columns[ix], columns[iz] = ux * ax - uz * az, uz * ax + ux * az
+    return torch.stack(columns, dim=-1).reshape(actions.shape)
 
 
 def cloud_quantiles(cloud: torch.Tensor, levels: int) -> torch.Tensor:
@@ -252,6 +312,9 @@ class PolicyConfig:
             task config's ``policy.shape_quantiles``.
         gap_features: the action head also reads the widest gap per axis of the observation and goal clouds,
             relative to the tool's centre (``cloud_gaps``). Set from the task config's ``policy.gap_features``.
+        heading_pairs: per skill index, flat ``(x, z)`` index pairs of the skill tool's horizontal action
+            vectors; a skill with pairs works in its goal's heading frame (``SetPolicy``), one without in the
+            frame above. Empty: none does. Set from the task config's ``policy.heading_skills``.
     """
 
     point_encoder: str = "pointnet2"
@@ -264,9 +327,13 @@ class PolicyConfig:
     chunk: int = 1
     shape_quantiles: int = 0
     gap_features: bool = False
+    heading_pairs: tuple[tuple[int, ...], ...] = ()
 
     def __post_init__(self) -> None:
         check_point_encoder(self.point_encoder)
+        for pairs in self.heading_pairs:
+            if len(pairs) % 2:
+                raise ValueError(f"heading pairs come as (x, z) index pairs, got {pairs}")
         if self.shape_quantiles == 1 or self.shape_quantiles < 0:
             raise ValueError(f"shape_quantiles must be 0 or at least 2, got {self.shape_quantiles}")
         if self.chunk < 1:
@@ -286,12 +353,23 @@ class SetPolicy(nn.Module):
 
     Orthogonal initialisation of the action head (official ``weight_init``); the PointNet++ keeps torch's,
     the compact encoder is orthogonal too.
+
+    With ``heading_pairs`` (the ``(x, z)`` indices of the skill tool's horizontal action vectors) the policy
+    works in its goal's heading frame: every cloud is turned about the vertical axis through the observation's
+    centre so that the goal lies along +x (:func:`goal_heading`, :func:`turn_clouds`), and the predicted
+    horizontal vectors are turned back (:func:`turn_actions`). The policy is then equivariant to turning the
+    scene about a vertical axis: a push along any direction is the same push along +x.
     """
 
-    def __init__(self, action_dim: int, config: PolicyConfig = PolicyConfig()) -> None:
+    def __init__(self, action_dim: int, config: PolicyConfig = PolicyConfig(), heading_pairs: Sequence[int] = ()
+                 ) -> None:
         super().__init__()
+        if len(heading_pairs) % 2 or any(not 0 <= i < action_dim for i in heading_pairs):
+            raise ValueError(f"heading pairs must be (x, z) index pairs within the {action_dim} action values, "
+                             f"got {tuple(heading_pairs)}")
         self.config = config
         self.action_dim = action_dim
+        self.heading_pairs = tuple(int(i) for i in heading_pairs)
         self.encoder = point_encoder(config.point_encoder, config.encoder, config.pointnet, n_clouds=3)
         extra = (6 if config.frame == "dough" else 0) + (1 if config.phase_input else 0) + 6 * config.shape_quantiles
         extra += 18 if config.gap_features else 0
@@ -302,6 +380,11 @@ class SetPolicy(nn.Module):
     def forward(self, obs_points: torch.Tensor, tool_points: torch.Tensor, goal_points: torch.Tensor,
                 phase: torch.Tensor | None = None) -> torch.Tensor:
         """Actions ``(B, chunk * action_dim)``; ``phase`` ``(B,)`` is required when ``config.phase_input``."""
+        heading = None
+        if self.heading_pairs:
+            heading = goal_heading(obs_points, goal_points)
+            obs_points, tool_points, goal_points = turn_clouds(heading, obs_points.mean(dim=1), obs_points,
+                                                               tool_points, goal_points)
         if self.config.frame == "dough":
             clouds, offsets = dough_frame(obs_points, tool_points, goal_points)
             features = [encode_clouds(self.encoder, clouds), offsets.to(obs_points.dtype)]
@@ -319,4 +402,7 @@ class SetPolicy(nn.Module):
                 raise ValueError(f"this policy reads the skill's phase: need phase of shape ({obs_points.shape[0]},), "
                                  f"got {None if phase is None else tuple(phase.shape)}")
             features.append(phase.to(obs_points.dtype).unsqueeze(1))
-        return self.head(torch.cat(features, dim=-1)) * self.config.output_scale
+        actions = self.head(torch.cat(features, dim=-1)) * self.config.output_scale
+        if heading is not None:
+            actions = turn_actions(actions, heading, self.heading_pairs, self.action_dim)
+        return actions

@@ -78,11 +78,19 @@ VARIANT_SPECS: Mapping[str, VariantSpec] = MappingProxyType(
 )
 
 # (policy_on_latents, tool_state_after_encoder) -> policy for one skill.
-_POLICY_BUILDERS: Mapping[tuple[bool, bool], Callable[[int, ModelConfig], nn.Module]] = MappingProxyType(
+def _set_policy(action_dim: int, config: ModelConfig, skill: int) -> SetPolicy:
+    pairs = config.policy.heading_pairs
+    if pairs and len(pairs) <= skill:
+        raise ValueError(f"policy.heading_pairs has {len(pairs)} entries; skill index {skill} has none")
+    return SetPolicy(action_dim, config.policy, heading_pairs=pairs[skill] if pairs else ())
+
+
+# The two policy ablations keep the appendix's inputs: no heading frame.
+_POLICY_BUILDERS: Mapping[tuple[bool, bool], Callable[[int, ModelConfig, int], nn.Module]] = MappingProxyType(
     {
-        (False, False): lambda action_dim, config: SetPolicy(action_dim, config.policy),
-        (True, False): lambda action_dim, config: LatentSetPolicy(action_dim, config.latent_policy),
-        (False, True): lambda action_dim, config: ToolConcatPolicy(action_dim, config.tool_concat_policy),
+        (False, False): _set_policy,
+        (True, False): lambda action_dim, config, skill: LatentSetPolicy(action_dim, config.latent_policy),
+        (False, True): lambda action_dim, config, skill: ToolConcatPolicy(action_dim, config.tool_concat_policy),
     }
 )
 
@@ -127,5 +135,5 @@ def build_models(
             "vae": PointCloudVAE(config.vae),
             "feasibility": nn.ModuleList(SetFeasibilityPredictor(config.feasibility) for _ in range(n_skills)),
             "cost": CostPredictor(config.cost),
-            "policy": nn.ModuleList(build_policy(action_dim, config) for _ in range(n_skills)),
+            "policy": nn.ModuleList(build_policy(action_dim, config, k) for k in range(n_skills)),
         }

@@ -34,6 +34,29 @@ def action_dim_of(cfg: TaskConfig) -> int:
     return sum(len(tool.action_scales) for tool in cfg.tools if not tool.static)
 
 
+def heading_pairs_of(cfg: TaskConfig) -> tuple[tuple[int, ...], ...]:
+    """Per skill, the flat ``(x, z)`` index pairs of its tool's horizontal action vectors within the full action
+    vector if ``policy.heading_skills`` names it (a box's translation and world-frame rotation; a gripper's
+    translation, its rotation being in its own frame), else ``()``; ``()`` overall when no skill is named."""
+    if not any(skill.name in cfg.policy.heading_skills for skill in cfg.skills):
+        return ()
+    starts, offset = {}, 0
+    for tool in cfg.tools:
+        if not tool.static:
+            starts[tool.name] = offset
+            offset += len(tool.action_scales)
+    tools = {tool.name: tool for tool in cfg.tools}
+    pairs = []
+    for skill in cfg.skills:
+        if skill.name not in cfg.policy.heading_skills:
+            pairs.append(())
+            continue
+        a0 = starts[skill.tool]
+        local = (0, 2, 3, 5) if tools[skill.tool].kind == "box" else (0, 2)
+        pairs.append(tuple(a0 + i for i in local))
+    return tuple(pairs)
+
+
 @dataclass(frozen=True, eq=False)
 class TrainedModels:
     """The trained networks of one (task, variant) and what is needed to use them.
@@ -126,11 +149,11 @@ def untrained(cfg: TaskConfig, variant: str, prior: LatentPrior, *, model_config
               seed: int = 0) -> TrainedModels:
     """Freshly initialised networks for ``cfg``'s skills and action space (the start of training); ``cfg`` sets
     the latent size and the policies' point encoder, inputs and outputs (``policy.encoder``, ``frame``,
-    ``phase_input``, ``chunk``, ``shape_quantiles``, ``gap_features``) of ``model_config``."""
+    ``phase_input``, ``chunk``, ``shape_quantiles``, ``gap_features``, ``heading_skills``) of ``model_config``."""
     base = (model_config or ModelConfig()).with_latent_dim(cfg.train.latent_dim)
     config = base.with_policy_encoder(cfg.policy.encoder).with_policy_io(
         cfg.policy.frame, cfg.policy.phase_input, cfg.policy.chunk, cfg.policy.shape_quantiles,
-        cfg.policy.gap_features)
+        cfg.policy.gap_features, heading_pairs_of(cfg))
     spec = variant_spec(variant)
     return TrainedModels(
         task=cfg.task,

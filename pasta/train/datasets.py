@@ -1,7 +1,8 @@
 """Training sets built from a ``Demonstrations`` table and its ``EntityTable``.
 
 * ``split_trajectories``: a seeded split by trajectory (the VAE uses 80/20, the heads 90/10, seed 42,
-  as the official ``generate_train_eval_split``).
+  as the official ``generate_train_eval_split``; the heads' split also holds out one trajectory of every
+  skill the permutation left out, so that each policy has a held-out error).
 * ``vae_clouds``: the entities of the chosen trajectories' states and targets (the official set VAE also
   trains on goal entities).
 * ``TransitionSampler``: per skill, the transitions ``(trajectory, t)`` of the chosen trajectories, and
@@ -44,12 +45,30 @@ __all__ = [
 HINDSIGHT_GOAL_RATIO = 0.5
 
 
-def split_trajectories(demos: Demonstrations, test_fraction: float, seed: int = 42) -> tuple[np.ndarray, np.ndarray]:
-    """Positions (into ``demos``) of the train and held-out trajectories, split by a seeded permutation of ids."""
+def split_trajectories(demos: Demonstrations, test_fraction: float, seed: int = 42, every_skill: bool = False
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (into ``demos``) of the train and held-out trajectories, split by a seeded permutation of ids.
+
+    With ``every_skill``, a skill with at least two trajectories none of which the permutation held out gets
+    one of them held out (drawn with ``seed``), so that every skill's held-out error can be measured; a split
+    that already holds out every skill is left as it is.
+    """
     train_ids, test_ids = split_by_configuration(demos.trajectory_ids.tolist(), test_fraction, seed)
     position = {int(t): i for i, t in enumerate(demos.trajectory_ids)}
-    return (np.asarray([position[t] for t in train_ids], dtype=np.int64),
-            np.asarray([position[t] for t in test_ids], dtype=np.int64))
+    train = [position[t] for t in train_ids]
+    test = [position[t] for t in test_ids]
+    if every_skill:
+        rng = np.random.RandomState(seed)
+        for k in np.unique(demos.skill_index):
+            of_skill = [i for i in train if demos.skill_index[i] == k]
+            if len(of_skill) >= 2 and not any(demos.skill_index[i] == k for i in test):
+                moved = of_skill[rng.randint(len(of_skill))]
+                train.remove(moved)
+                test.append(moved)
+    def in_id_order(positions: list[int]) -> np.ndarray:
+        return np.asarray(sorted(positions, key=lambda i: int(demos.trajectory_ids[i])), dtype=np.int64)
+
+    return in_id_order(train), in_id_order(test)
 
 
 def vae_clouds(demos: Demonstrations, table: EntityTable, trajectories: np.ndarray) -> torch.Tensor:
@@ -119,12 +138,15 @@ class TransitionSampler:
         chunk: actions per policy sample's ``action_chunks`` (``cfg.policy.chunk`` in training).
         hindsight_ratio: share of policy samples whose goal is a later state of the same trajectory instead of
             its target (``cfg.train.policy_hindsight_ratio``; the official 0.5).
+        keep_acted: where filtering would leave no observed entity, keep the observed entity farthest from its
+            nearest goal entity and that goal entity (``cfg.train.filter_keeps_acted``; the official drops the
+            sample).
     """
 
     def __init__(self, demos: Demonstrations, table: EntityTable, skills: tuple[SkillConfig, ...],
                  trajectories: np.ndarray, filter_epsilon: float, chamfer: PairChamfer,
                  cloud_points: int | None = None, chunk: int = 1,
-                 hindsight_ratio: float = HINDSIGHT_GOAL_RATIO) -> None:
+                 hindsight_ratio: float = HINDSIGHT_GOAL_RATIO, keep_acted: bool = False) -> None:
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1, got {chunk}")
         if not 0.0 <= hindsight_ratio <= 1.0:
@@ -134,6 +156,7 @@ class TransitionSampler:
         self.chunk = chunk
         self.cloud_points = cloud_points or demos.points.shape[1]
         self.filter_epsilon = filter_epsilon
+        self.keep_acted = keep_acted
         self.chamfer = chamfer
         self.transitions: list[np.ndarray] = []  # per skill: (n_k, 2) rows of (trajectory position, t)
         for k in range(len(skills)):
@@ -153,8 +176,15 @@ class TransitionSampler:
         distances = self.chamfer(a, b)
         out, start = [], 0
         for o, g in pairs:
-            close = (distances[start : start + len(o) * len(g)] < epsilon).reshape(len(o), len(g))
+            block = distances[start : start + len(o) * len(g)].reshape(len(o), len(g))
             start += len(o) * len(g)
+            close = block < epsilon
+            if self.keep_acted and len(o) and len(g) and close.any(axis=1).all():
+                # Every observed entity matches a goal entity: a skill that changes its entity a little (a short
+                # spread) would leave nothing. The entity the skill changed most is the one it acts on.
+                acted = int(np.argmax(block.min(axis=1)))
+                close[acted, :] = False
+                close[:, int(np.argmin(block[acted]))] = False
             out.append((o[~close.any(axis=1)], g[~close.any(axis=0)]))
         return out
 

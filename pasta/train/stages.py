@@ -58,7 +58,7 @@ def load_training_data(cfg: TaskConfig, folder: str | Path, *, whole_scene: bool
     demos = load_demonstrations(folder, cfg, seed=seed)
     table = build_entity_table(demos, n_points=entity_points, whole_scene=whole_scene, seed=seed)
     vae_train, vae_heldout = split_trajectories(demos, VAE_TEST_FRACTION, SPLIT_SEED)
-    heads_train, heads_heldout = split_trajectories(demos, HEADS_TEST_FRACTION, SPLIT_SEED)
+    heads_train, heads_heldout = split_trajectories(demos, HEADS_TEST_FRACTION, SPLIT_SEED, every_skill=True)
     if len(vae_heldout) == 0 or len(heads_heldout) == 0:
         raise ValueError(f"{folder}: {len(demos)} trajectories leave no held-out trajectory; need at least 10")
     return TrainingData(demos, table, whole_scene, vae_train, vae_heldout, heads_train, heads_heldout)
@@ -100,10 +100,11 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     chamfer = PairChamfer(data.table)
     epsilon = DEFAULT_FILTER_EPSILON if spec.filter_entities else 0.0
     points, chunk, hindsight = cfg.policy.points, cfg.policy.chunk, cfg.train.policy_hindsight_ratio
+    keep_acted = cfg.train.filter_keeps_acted
     train_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_train, epsilon, chamfer, points,
-                                      chunk, hindsight)
+                                      chunk, hindsight, keep_acted)
     test_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_heldout, epsilon, chamfer, points,
-                                     chunk, hindsight)
+                                     chunk, hindsight, keep_acted)
     train_states = np.concatenate([np.arange(data.demos.first_state[i], data.demos.target_state[i] + 1)
                                    for i in data.heads_train])
     train_entities = torch.from_numpy(data.table.of_states(train_states)).to(device)

@@ -13,7 +13,10 @@ from pasta.models.policy import (
     cloud_gaps,
     cloud_quantiles,
     dough_frame,
+    goal_heading,
     tag_point_roles,
+    turn_actions,
+    turn_clouds,
 )
 from tests.models.synthetic import box_clouds, goal_offset_problem, tiny_encoder, train
 
@@ -118,6 +121,75 @@ def test_a_dough_frame_policy_ignores_where_the_scene_is_on_the_floor(encoder):
     assert gap(here, there) < 1e-5
     assert gap(here, up) > 1e-3
     assert gap(results["world"][0], results["world"][1]) > 1e-3
+
+
+def _turned_about_y(cloud: torch.Tensor, angle: float, pivot: torch.Tensor) -> torch.Tensor:
+    """A slow reference: rotation matrix about the vertical axis through ``pivot`` (x towards z by ``angle``)."""
+    c, s = torch.cos(torch.tensor(angle)), torch.sin(torch.tensor(angle))
+    rotation = torch.tensor([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+    return (cloud - pivot) @ rotation.T + pivot
+
+
+def test_turn_clouds_puts_the_heading_on_plus_x_and_turn_actions_undoes_it():
+    gen = torch.Generator().manual_seed(11)
+    obs = box_clouds(3, 32, gen)
+    goal = box_clouds(3, 32, gen)
+    heading = goal_heading(obs, goal)
+    assert torch.allclose(heading.norm(dim=1), torch.ones(3), atol=1e-6)
+    obs_t, goal_t = turn_clouds(heading, obs.mean(dim=1), obs, goal)
+    offset = goal_t.mean(dim=1) - obs_t.mean(dim=1)
+    assert torch.allclose(offset[:, 2], torch.zeros(3), atol=1e-6) and bool((offset[:, 0] > 0).all())
+    assert torch.allclose(obs_t[..., 1], obs[..., 1])  # heights kept
+    # Distances within a cloud are kept (a rotation), and turn_actions maps the turned offset back to the world's.
+    def distances(cloud):
+        return (cloud[:, :, None] - cloud[:, None]).norm(dim=-1)
+
+    assert torch.allclose(distances(obs_t), distances(obs), atol=1e-6)
+    actions = torch.zeros(3, 2 * 4)  # two steps of a 4-value action whose (x, z) pair is (1, 3)
+    actions[:, [1, 5]] = offset[:, [0]]
+    back = turn_actions(actions, heading, (1, 3), 4)
+    world = goal.mean(dim=1) - obs.mean(dim=1)
+    for step in (0, 4):
+        assert torch.allclose(back[:, [step + 1, step + 3]], world[:, [0, 2]], atol=1e-6)
+    assert torch.equal(back[:, [0, 2, 4, 6]], actions[:, [0, 2, 4, 6]])
+    assert torch.equal(goal_heading(obs, obs.clone()), torch.tensor([[1.0, 0.0]]).expand(3, 2))
+
+
+@pytest.mark.parametrize("encoder", ["pointnet2", "pointnet"])
+def test_a_heading_policy_turns_its_push_with_the_scene(encoder):
+    """``policy.heading_skills``: turning the whole scene about a vertical axis turns the predicted horizontal
+    vectors (the named pairs) with it and leaves the other action values; a policy without heading pairs (same
+    weights) does not follow the turn."""
+    gen = torch.Generator().manual_seed(12)
+    obs, tool = box_clouds(2, 64, gen), box_clouds(2, 16, gen)
+    goal = obs + torch.tensor([0.15, 0.0, 0.05])
+    pivot = torch.tensor([0.5, 0.0, 0.45])
+    angle = 1.1
+    turned = [_turned_about_y(c, angle, pivot) for c in (obs, tool, goal)]
+    config = PolicyConfig(point_encoder=encoder, encoder=tiny_encoder(3), frame="dough", chunk=2, shape_quantiles=3)
+    results = {}
+    for pairs in ((0, 2, 3, 5), ()):
+        torch.manual_seed(0)
+        policy = SetPolicy(6, config, heading_pairs=pairs).eval()
+        with torch.no_grad():
+            results[pairs] = (policy(obs, tool, goal).reshape(2, 2, 6), policy(*turned).reshape(2, 2, 6))
+    here, there = results[(0, 2, 3, 5)]
+    c, s = torch.cos(torch.tensor(angle)), torch.sin(torch.tensor(angle))
+    for ix, iz in ((0, 2), (3, 5)):
+        expected_x = c * here[..., ix] - s * here[..., iz]
+        expected_z = s * here[..., ix] + c * here[..., iz]
+        assert torch.allclose(there[..., ix], expected_x, atol=2e-4)
+        assert torch.allclose(there[..., iz], expected_z, atol=2e-4)
+    assert float((there[..., [1, 4]] - here[..., [1, 4]]).abs().max()) < 2e-4
+    plain_here, plain_there = results[()]
+    assert not torch.allclose(plain_there[..., 0], c * plain_here[..., 0] - s * plain_here[..., 2], atol=2e-3)
+
+
+def test_heading_pairs_must_be_pairs_within_the_action():
+    with pytest.raises(ValueError, match="heading pairs"):
+        SetPolicy(6, PolicyConfig(point_encoder="pointnet"), heading_pairs=(0, 2, 3))
+    with pytest.raises(ValueError, match="heading pairs"):
+        SetPolicy(6, PolicyConfig(point_encoder="pointnet"), heading_pairs=(0, 7))
 
 
 def test_a_phase_policy_reads_the_phase_and_refuses_to_go_without_it():

@@ -3,6 +3,7 @@ normalisation included."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from pasta.config import load
@@ -42,3 +43,27 @@ def test_a_saved_compact_bundle_acts_as_the_trained_one(tmp_path):
             assert torch.equal(loaded.policy(skill)(*inputs), bundle.policy(skill)(*inputs))
     assert not torch.equal(loaded.policy("cut").encoder.centre, loaded.policy("rearrange").encoder.centre)
 
+
+
+def test_heading_skills_turn_their_tools_action_pairs_and_survive_a_save(tmp_path):
+    """``policy.heading_skills``: CRS's pusher is the second tool (after the knife's 3 values), a box, so its
+    translation and world-frame rotation pairs turn; the knife's cut and the roller's spread keep the frame."""
+    cfg = load("CRS", "smoke", ["policy.encoder=pointnet", "policy.heading_skills=[push,rearrange]"])
+    bundle = untrained(cfg, "pasta", PRIOR, model_config=tiny_model_config(), seed=0)
+    assert bundle.model_config.policy.heading_pairs == ((), (3, 5, 6, 8), ())
+    assert [bundle.policy(skill).heading_pairs for skill in bundle.skill_names] == [(), (3, 5, 6, 8), ()]
+    loaded = load_trained(save_trained(tmp_path / "models.pt", bundle), "cpu")
+    assert loaded.policy("push").heading_pairs == (3, 5, 6, 8) and loaded.policy("cut").heading_pairs == ()
+    both = ["policy.encoder=pointnet", "policy.heading_skills=[push,rearrange]"]
+    gripper = untrained(load("CutRearrange", "smoke", both), "pasta", PRIOR, model_config=tiny_model_config())
+    assert gripper.policy("rearrange").heading_pairs == (3, 5)  # a gripper turns in its own frame: translation only
+    plain = untrained(load("CRS", "smoke", ["policy.encoder=pointnet"]), "pasta", PRIOR,
+                      model_config=tiny_model_config())
+    assert plain.model_config.policy.heading_pairs == ()
+
+
+def test_a_heading_skill_must_have_a_tool_that_moves_along_x_and_z():
+    with pytest.raises(ValueError, match="heading_skills names 'cut'"):
+        load("CRS", "smoke", ["policy.heading_skills=[cut]"])
+    with pytest.raises(ValueError, match="heading_skills"):
+        load("CRS", "smoke", ["policy.heading_skills=[shove]"])

@@ -142,3 +142,45 @@ def test_the_hindsight_ratio_sets_how_many_policy_goals_are_later_states(cfg, tr
     assert sum(g == t for g, t in zip(goals[1.0], [t for t in targets for _ in range(8)], strict=True)) < len(rows) * 8
     with pytest.raises(ValueError, match="hindsight_ratio.*1.5"):
         TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table), hindsight_ratio=1.5)
+
+
+def test_the_heads_split_holds_out_a_trajectory_of_every_skill(training_data):
+    """A split that left a skill without a held-out trajectory gets one of that skill's moved over (seeded); a
+    split that held out every skill stays as it is."""
+    demos = training_data.demos
+    branches = set()
+    for seed, fraction in [(seed, fraction) for seed in range(10) for fraction in (0.1, 0.3)]:
+        train, test = split_trajectories(demos, fraction, seed=seed)
+        fair_train, fair_test = split_trajectories(demos, fraction, seed=seed, every_skill=True)
+        assert sorted(np.concatenate([fair_train, fair_test]).tolist()) == list(range(len(demos)))
+        assert set(test) <= set(fair_test)
+        assert set(demos.skill_index[fair_test]) == set(demos.skill_index)
+        if set(demos.skill_index[test]) == set(demos.skill_index):
+            assert np.array_equal(fair_test, test) and np.array_equal(fair_train, train)
+            branches.add("kept")
+        else:
+            assert len(fair_test) > len(test)
+            branches.add("moved")
+    assert branches == {"kept", "moved"}
+    assert np.array_equal(split_trajectories(demos, 0.1, seed=3, every_skill=True)[1],
+                          split_trajectories(demos, 0.1, seed=3, every_skill=True)[1])
+
+
+def test_filtering_that_keeps_the_acted_entity_leaves_a_pair_where_every_entity_matched(cfg, training_data):
+    """A goal within the filter's Chamfer of every observed entity: the official filtering leaves nothing,
+    ``keep_acted`` keeps the observed entity farthest from its nearest goal entity, and that goal entity."""
+    demos, table = training_data.demos, training_data.table
+    chamfer = PairChamfer(table)
+    state = int(demos.first_state[0])
+    entities = table.state_entities[state]
+    pairs = [(entities, entities.copy())]  # the state against itself: every distance 0
+    official = TransitionSampler(demos, table, cfg.skills, np.arange(10), 5e-4, chamfer)
+    keeping = TransitionSampler(demos, table, cfg.skills, np.arange(10), 5e-4, chamfer, keep_acted=True)
+    (o, g), = official._filter_all(pairs, 5e-4)
+    assert len(o) == 0 and len(g) == 0
+    (o, g), = keeping._filter_all(pairs, 5e-4)
+    assert len(o) == 1 and len(g) == 1 and int(o[0]) in entities.tolist()
+    # With a goal that moved one entity far, both filterings agree (that entity is the acted one).
+    later = table.state_entities[int(demos.target_state[0])]
+    assert [tuple(map(len, p)) for p in official._filter_all([(entities, later)], 5e-4)] == \
+        [tuple(map(len, p)) for p in keeping._filter_all([(entities, later)], 5e-4)]

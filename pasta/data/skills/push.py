@@ -26,6 +26,8 @@ from pasta.sim.tool_points import world_sdf
 
 PUSH_SINK = 0.005  # the pusher's bottom sits this far below the dough's bottom
 STRAY_SHARE = 0.005  # a start pose may hold this share of the dough's particles (a smear left by a cut)
+SMEAR_LIFT = 0.03  # how far the pusher may start above its pushing height to clear a floor smear between pieces
+SMEAR_LIFT_STEP = 0.005
 
 
 @dataclass(frozen=True)
@@ -74,15 +76,25 @@ def push_start(env: DoughEnv, tool_name: str, scene: Scene) -> ToolPose:
     line = _push_line(tool, scene, None)
     if line is None:  # no target: the +x side, facing -x (env_spec 2.5)
         line = _push_line(tool, scene, np.array([-1.0, 0.0, 0.0]), yaw=0.0)
-    pose = ToolPose(pos=tuple(line.start), rot=yaw_quat(line.yaw))
+    rot = yaw_quat(line.yaw)
+
+    def clear(pos: np.ndarray) -> bool:
+        inside = world_sdf(tool, scene.points, tuple(pos), rot, 0.0) < 0.0
+        return bool(inside.sum() <= STRAY_SHARE * len(scene.points))
+
     for extra in np.arange(0.0, 0.1, 0.01):  # back off until (nearly) clear of the dough
-        pose = ToolPose(pos=tuple(line.start - line.direction * extra), rot=yaw_quat(line.yaw))
-        inside = world_sdf(tool, scene.points, pose.pos, pose.rot, pose.gap) < 0.0
-        if inside.sum() <= STRAY_SHARE * len(scene.points):
-            return pose
-    raised = np.array(pose.pos)
+        pos = line.start - line.direction * extra
+        if clear(pos):
+            return ToolPose(pos=tuple(pos), rot=rot)
+    # A cut can leave the pieces' feet nearly touching on the floor while their bodies stand well apart: start
+    # in the gap just above the feet rather than over all of the dough, where a push meets nothing.
+    for lift in np.arange(SMEAR_LIFT_STEP, SMEAR_LIFT + 1e-9, SMEAR_LIFT_STEP):
+        pos = line.start + np.array([0.0, lift, 0.0])
+        if clear(pos):
+            return ToolPose(pos=tuple(pos), rot=rot)
+    raised = line.start - line.direction * 0.09
     raised[1] = scene.top_all + tool.half_extents[1] + CLEARANCE
-    return ToolPose(pos=tuple(raised), rot=pose.rot)
+    return ToolPose(pos=tuple(raised), rot=rot)
 
 
 def push(env: DoughEnv, m: Motion, scene: Scene) -> None:
@@ -96,7 +108,8 @@ def push(env: DoughEnv, m: Motion, scene: Scene) -> None:
     along = float(rel @ line.direction)
     across = float(np.linalg.norm(rel - along * line.direction - rel[1] * np.array([0.0, 1.0, 0.0])))
     hx, hy, hz = tool.half_extents
-    behind = along < -line.back - 0.5 * hx and across < 0.5 * hz and abs(m.pos[1] - line.start[1]) < 0.02
+    behind = (along < -line.back - 0.5 * hx and across < 0.5 * hz
+              and -0.02 < m.pos[1] - line.start[1] < SMEAR_LIFT + 0.02)
     if not behind:  # approach: up, over the start (turning towards the target meanwhile), down
         safe_y = scene.top_all + world_half_y(tool, m.rot) + CLEARANCE
         if m.pos[1] < safe_y:
