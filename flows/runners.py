@@ -18,6 +18,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -29,14 +30,31 @@ from prefect.task_runners import ProcessPoolTaskRunner, TaskRunner
 from pasta.sim.runtime import THREADS_ENV
 
 __all__ = [
-    "check_workers", "in_main_thread", "one_prefect_server", "run_in_child_process", "share_cores", "task_runner",
-    "write_child_result",
+    "check_workers", "exit_with_parent", "in_main_thread", "one_prefect_server", "run_in_child_process",
+    "share_cores", "task_runner", "write_child_result",
 ]
 
 
+PARENT_POLL_S = 1.0  # how often a pool worker checks that the process that started it is still alive
+
+
+def exit_with_parent(parent: int, poll_s: float = PARENT_POLL_S) -> None:
+    """Exit this process (status 1) as soon as its parent is no longer ``parent``; never returns otherwise.
+
+    A pool worker's parent that is killed (Ctrl-C twice, SIGKILL, a session's end) cannot shut its pool down,
+    and its workers would go on simulating demonstrations for nobody, holding the cores.
+    """
+    while True:
+        time.sleep(poll_s)
+        if os.getppid() != parent:
+            os._exit(1)
+
+
 def share_cores(threads: int) -> None:
-    """Process-pool initialiser: each worker gets its share of the cores (Taichi and torch)."""
+    """Process-pool initialiser: each worker gets its share of the cores (Taichi and torch), and exits when the
+    process that started it dies (:func:`exit_with_parent`, in a daemon thread)."""
     os.environ[THREADS_ENV] = str(threads)
+    threading.Thread(target=exit_with_parent, args=(os.getppid(),), daemon=True, name="exit-with-parent").start()
     import torch
 
     torch.set_num_threads(threads)

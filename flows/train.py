@@ -70,7 +70,8 @@ def vae_key(cfg: TaskConfig, folder: Path, whole_scene: bool, model_config: Mode
     index's content."""
     index = (folder / "index.csv").read_bytes()
     return _digest(cfg.train.vae_lr, cfg.train.vae_epochs, cfg.train.latent_dim, cfg.train.precision, whole_scene,
-                   model_config.with_latent_dim(cfg.train.latent_dim).vae, hashlib.sha256(index).hexdigest(),
+                   model_config.with_latent_dim(cfg.train.latent_dim).with_vae_height_input(cfg.train.vae_height_input)
+                   .vae, hashlib.sha256(index).hexdigest(),
                    cfg.data.model_dump(mode="json"), seed)
 
 
@@ -118,7 +119,7 @@ def train(task_name: str, profile: str = "smoke", variant: str = "pasta", method
     variant_spec(variant)
     cfg = load(model_task(task_name), profile, list(overrides))
     sizes = ModelConfig() if networks is None else ModelConfig.from_dict(networks)
-    sizes = sizes.with_latent_dim(cfg.train.latent_dim)
+    sizes = sizes.with_latent_dim(cfg.train.latent_dim).with_vae_height_input(cfg.train.vae_height_input)
     whole_scene = variant_spec(variant).whole_scene_latent
     folder = dataset_folder(cfg.task, profile, method)
     chosen_device = training_device(device)

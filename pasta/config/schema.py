@@ -242,6 +242,10 @@ class TrainConfig(Frozen):
 
     vae_lr: float = Field(gt=0)
     latent_dim: int = Field(ge=1)
+    # Whether the VAE's decoder also reads the entity centre's height (pasta.models.vae.VAEConfig.height_input):
+    # dough rests on the floor, so a piece's centre height tells its thickness. False (the appendix's): the
+    # decoder reads z alone.
+    vae_height_input: bool = False
     feasibility_lr: float = Field(gt=0)
     feasibility_batch_size: int = Field(ge=1)
     feasibility_sigma_z: float = Field(ge=0)
@@ -334,9 +338,9 @@ class PolicyNetConfig(Frozen):
     ``encoder``: ``pointnet2``, the appendix's PointNet++ over the role-tagged union of the observation, tool
     and goal clouds; or ``pointnet``, a compact PointNet per cloud, max-pooled and concatenated, about 25x
     fewer operations per training step. The tool-concat ablation follows the choice; the latent-set policy
-    has no point encoder. ``frame``, ``phase_input``, ``chunk``, ``shape_quantiles`` and ``gap_features`` shape
-    the set policy (PASTA's) only: the two policy ablations of Table 5 keep the appendix's inputs and one action
-    per call.
+    has no point encoder. ``frame``, ``phase_input``, ``previous_action``, ``chunk``, ``shape_quantiles`` and
+    ``gap_features`` shape the set policy (PASTA's) only: the two policy ablations of Table 5 keep the appendix's
+    inputs and one action per call.
     """
 
     encoder: Literal[POLICY_ENCODERS] = "pointnet2"
@@ -346,6 +350,10 @@ class PolicyNetConfig(Frozen):
     frame: Literal[POLICY_FRAMES] = "world"
     # Whether the set policy also reads the skill's phase, step / steps_per_skill (the appendix's does not).
     phase_input: bool = False
+    # Whether the set policy also reads the action applied at the previous step (zeros at a skill's first step):
+    # the direction a tool is travelling in, which its clouds do not show (a rolling pin mid-stroke). False
+    # (the appendix's): not given.
+    previous_action: bool = False
     # Actions the set policy predicts per call (action chunking): the executor acts the chunk out and asks
     # again after that many steps; training fits every step of the chunk. 1 (the appendix's): one per step.
     chunk: int = Field(default=1, ge=1)

@@ -140,10 +140,11 @@ def already_reached(points: np.ndarray, labels: np.ndarray, subgoal_points: np.n
 
 
 def policy_view(env: DoughEnv, tool: str, indices: np.ndarray, goal_points: np.ndarray, goal_latents: torch.Tensor,
-                step: int, rng: np.random.Generator) -> PolicyInput:
+                step: int, rng: np.random.Generator, previous_action: np.ndarray) -> PolicyInput:
     """What a skill's policy sees at ``step`` of the skill: the dough at the frozen observation ``indices``
     resampled to ``cfg.policy.points``, the tool's points and state, the ``goal_points`` (already resampled once
-    per skill, as training builds its goal cloud) and the phase ``step / steps_per_skill``."""
+    per skill, as training builds its goal cloud), the phase ``step / steps_per_skill`` and the ``(A,)`` action
+    applied at the step before (zeros at the first)."""
     obs = env.observation()
     return PolicyInput(
         obs_points=resample(obs.dough_points[indices], env.cfg.policy.points, rng),
@@ -152,6 +153,7 @@ def policy_view(env: DoughEnv, tool: str, indices: np.ndarray, goal_points: np.n
         goal_points=goal_points,
         goal_latents=goal_latents,
         phase=step / env.cfg.sim.steps_per_skill,
+        previous_action=np.asarray(previous_action, dtype=np.float32),
     )
 
 
@@ -162,11 +164,13 @@ def _run_policy(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, pla
         _run_policy_ensembled(env, bundle, skill, tool, plan_step, indices, goal_points, goal_latents, rng)
         return
     chunk = np.zeros((0, env.action_dim))
+    applied = np.zeros(env.action_dim, dtype=np.float32)
     for k in range(env.cfg.sim.steps_per_skill):
         if len(chunk) == 0:  # ask the policy; a chunking policy answers for several steps
-            seen = policy_view(env, tool, indices, goal_points, goal_latents, k, rng)
+            seen = policy_view(env, tool, indices, goal_points, goal_latents, k, rng, applied)
             chunk = policy_action(bundle, skill, seen).reshape(-1, env.action_dim)
-        env.step(checked_action(chunk[0], skill, plan_step, k))
+        applied = checked_action(chunk[0], skill, plan_step, k)
+        env.step(applied)
         chunk = chunk[1:]
 
 
@@ -176,10 +180,12 @@ def _run_policy_ensembled(env: DoughEnv, bundle: TrainedModels, skill: str, tool
     """The policy asked at every step; each step acts the temporal ensemble of the chunks' predictions for it."""
     n_steps = env.cfg.sim.steps_per_skill
     ensemble = ChunkEnsemble(n_steps, env.action_dim, env.cfg.policy.ensemble_decay)
+    applied = np.zeros(env.action_dim, dtype=np.float32)
     for k in range(n_steps):
-        seen = policy_view(env, tool, indices, goal_points, goal_latents, k, rng)
+        seen = policy_view(env, tool, indices, goal_points, goal_latents, k, rng, applied)
         ensemble.add(k, policy_action(bundle, skill, seen).reshape(-1, env.action_dim))
-        env.step(checked_action(ensemble.action(k), skill, plan_step, k))
+        applied = checked_action(ensemble.action(k), skill, plan_step, k)
+        env.step(applied)
 
 
 def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step: int, mask: np.ndarray,

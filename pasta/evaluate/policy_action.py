@@ -37,6 +37,7 @@ class PolicyInput:
         goal_points: ``(N_g, 3)`` the decoded new subgoals, stacked.
         goal_latents: ``(N_out, D_z + 3)`` the new subgoal latents.
         phase: the step within the skill over the skill's step budget, in [0, 1).
+        previous_action: ``(A,)`` the action applied at the previous step of the skill (zeros at its first).
     """
 
     obs_points: np.ndarray
@@ -45,6 +46,7 @@ class PolicyInput:
     goal_points: np.ndarray
     goal_latents: torch.Tensor
     phase: float = 0.0
+    previous_action: np.ndarray | None = None
 
 
 def policy_action(bundle: TrainedModels, skill: str, seen: PolicyInput) -> np.ndarray:
@@ -64,7 +66,9 @@ def policy_action(bundle: TrainedModels, skill: str, seen: PolicyInput) -> np.nd
             action = policy(batch(seen.obs_points), batch(seen.goal_points), batch(seen.tool_state))
         else:
             phase = torch.tensor([seen.phase], dtype=torch.float32, device=device)
-            action = policy(batch(seen.obs_points), batch(seen.tool_points), batch(seen.goal_points), phase)
+            previous = None if seen.previous_action is None else batch(seen.previous_action)
+            action = policy(batch(seen.obs_points), batch(seen.tool_points), batch(seen.goal_points), phase,
+                            previous)
     return action.reshape(-1).double().cpu().numpy()
 
 

@@ -59,6 +59,11 @@ class ModelConfig:
             latent_policy=replace(self.latent_policy, latent_dim=latent_dim),
         )
 
+    def with_vae_height_input(self, height_input: bool) -> ModelConfig:
+        """This config with the VAE decoder reading the entity centre's height or not (``VAEConfig.height_input``;
+        e.g. from ``TrainConfig.vae_height_input``)."""
+        return replace(self, vae=replace(self.vae, height_input=height_input))
+
     def with_policy_encoder(self, name: str) -> ModelConfig:
         """This config with the point-cloud policies' encoder ``name`` (``pointnet2`` or ``pointnet``; e.g. from
         the task config's ``policy.encoder``): the set policy's and the tool-concat ablation's."""
@@ -66,14 +71,15 @@ class ModelConfig:
                        tool_concat_policy=replace(self.tool_concat_policy, point_encoder=name))
 
     def with_policy_io(self, frame: str, phase_input: bool, chunk: int, shape_quantiles: int = 0,
-                       gap_features: bool = False, heading_pairs: tuple[tuple[int, ...], ...] = ()) -> ModelConfig:
+                       gap_features: bool = False, heading_pairs: tuple[tuple[int, ...], ...] = (),
+                       previous_action_input: bool = False) -> ModelConfig:
         """This config with the set policy's cloud frame (``world`` or ``dough``), phase input, actions per call,
-        shape quantiles, gap features and per-skill heading pairs (e.g. from the task config's ``policy.frame``,
-        ``policy.phase_input``, ``policy.chunk``, ``policy.shape_quantiles``, ``policy.gap_features`` and
-        ``policy.heading_skills``)."""
+        shape quantiles, gap features, per-skill heading pairs and previous-action input (e.g. from the task
+        config's ``policy.frame``, ``policy.phase_input``, ``policy.chunk``, ``policy.shape_quantiles``,
+        ``policy.gap_features``, ``policy.heading_skills`` and ``policy.previous_action``)."""
         return replace(self, policy=replace(self.policy, frame=frame, phase_input=phase_input, chunk=chunk,
                                             shape_quantiles=shape_quantiles, gap_features=gap_features,
-                                            heading_pairs=heading_pairs))
+                                            heading_pairs=heading_pairs, previous_action_input=previous_action_input))
 
     def to_dict(self) -> dict[str, Any]:
         """Nested plain dict (tuples stay tuples)."""

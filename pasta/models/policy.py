@@ -305,6 +305,9 @@ class PolicyConfig:
         phase_input: the action head also reads the skill's phase, ``step / steps_per_skill`` in [0, 1) (the
             scripted demonstrations are timed motions: approach, act, hold, withdraw); set from the task
             config's ``policy.phase_input``.
+        previous_action_input: the action head also reads the action applied at the previous step (zeros at the
+            skill's first), in the policy's frame: which way a tool is travelling, which the clouds do not show.
+            Set from the task config's ``policy.previous_action``.
         chunk: actions predicted per call: this step's and the next ``chunk - 1`` (action chunking; the
             executor acts them out before it asks again); set from the task config's ``policy.chunk``.
         shape_quantiles: the action head also reads this many coordinate quantiles per axis of the
@@ -324,6 +327,7 @@ class PolicyConfig:
     output_scale: float = 0.2
     frame: str = "world"
     phase_input: bool = False
+    previous_action_input: bool = False
     chunk: int = 1
     shape_quantiles: int = 0
     gap_features: bool = False
@@ -373,18 +377,29 @@ class SetPolicy(nn.Module):
         self.encoder = point_encoder(config.point_encoder, config.encoder, config.pointnet, n_clouds=3)
         extra = (6 if config.frame == "dough" else 0) + (1 if config.phase_input else 0) + 6 * config.shape_quantiles
         extra += 18 if config.gap_features else 0
+        extra += action_dim if config.previous_action_input else 0
         self.head = mlp((self.encoder.out_dim + extra, *config.action_head_channels, action_dim * config.chunk),
                         final_activation=False)
         orthogonal_init_(self.head)
 
     def forward(self, obs_points: torch.Tensor, tool_points: torch.Tensor, goal_points: torch.Tensor,
-                phase: torch.Tensor | None = None) -> torch.Tensor:
-        """Actions ``(B, chunk * action_dim)``; ``phase`` ``(B,)`` is required when ``config.phase_input``."""
+                phase: torch.Tensor | None = None, previous_action: torch.Tensor | None = None) -> torch.Tensor:
+        """Actions ``(B, chunk * action_dim)``; ``phase`` ``(B,)`` is required when ``config.phase_input``, and
+        ``previous_action`` ``(B, action_dim)`` (in the world frame) when ``config.previous_action_input``."""
+        batch = obs_points.shape[0]
+        if self.config.previous_action_input and (previous_action is None
+                                                  or previous_action.shape != (batch, self.action_dim)):
+            raise ValueError(f"this policy reads the previous action: need previous_action of shape "
+                             f"({batch}, {self.action_dim}), got "
+                             f"{None if previous_action is None else tuple(previous_action.shape)}")
         heading = None
         if self.heading_pairs:
             heading = goal_heading(obs_points, goal_points)
             obs_points, tool_points, goal_points = turn_clouds(heading, obs_points.mean(dim=1), obs_points,
                                                                tool_points, goal_points)
+            if self.config.previous_action_input:
+                previous_action = turn_actions(previous_action, heading * heading.new_tensor([1.0, -1.0]),
+                                               self.heading_pairs, self.action_dim)
         if self.config.frame == "dough":
             clouds, offsets = dough_frame(obs_points, tool_points, goal_points)
             features = [encode_clouds(self.encoder, clouds), offsets.to(obs_points.dtype)]
@@ -402,6 +417,8 @@ class SetPolicy(nn.Module):
                 raise ValueError(f"this policy reads the skill's phase: need phase of shape ({obs_points.shape[0]},), "
                                  f"got {None if phase is None else tuple(phase.shape)}")
             features.append(phase.to(obs_points.dtype).unsqueeze(1))
+        if self.config.previous_action_input:
+            features.append(previous_action.to(obs_points.dtype))
         actions = self.head(torch.cat(features, dim=-1)) * self.config.output_scale
         if heading is not None:
             actions = turn_actions(actions, heading, self.heading_pairs, self.action_dim)

@@ -36,6 +36,9 @@ class VAEConfig:
         decoder_channels: hidden widths of the decoder MLP between ``z`` and the ``M x 3`` output.
         n_decoded_points: ``M``, points per decoded entity (official 1000).
         beta: weight of the KL term (model_spec §1.9 suggests 1e-3 to 1e-2).
+        height_input: the decoder also reads the entity centre's height ``t_y / scale``. Dough rests on the
+            floor, so the centre's height tells a piece's thickness, which a 2-D ``z`` shared with every other
+            shape feature holds only roughly. False (the appendix's): ``z`` alone.
     """
 
     latent_dim: int = 2
@@ -44,6 +47,7 @@ class VAEConfig:
     decoder_channels: tuple[int, ...] = (256, 256)
     n_decoded_points: int = 1000
     beta: float = 1e-3
+    height_input: bool = False
 
     @property
     def entity_dim(self) -> int:
@@ -71,7 +75,8 @@ class PointCloudVAE(nn.Module):
         self.mean_head = mlp((width, config.head_hidden, config.latent_dim), final_activation=False)
         self.logvar_head = mlp((width, config.head_hidden, config.latent_dim), final_activation=False)
         self.decoder = mlp(
-            (config.latent_dim, *config.decoder_channels, 3 * config.n_decoded_points), final_activation=False
+            (config.latent_dim + (1 if config.height_input else 0), *config.decoder_channels,
+             3 * config.n_decoded_points), final_activation=False
         )
         self.register_buffer("scale", torch.tensor(1.0))
 
@@ -111,13 +116,16 @@ class PointCloudVAE(nn.Module):
         z_mean, _, t = self.encode(points)
         return torch.cat([z_mean, t], dim=-1)
 
-    def decode_shape(self, z: torch.Tensor) -> torch.Tensor:
-        """``z (B, D_z)`` -> normalised shapes ``(B, M, 3)``."""
+    def decode_shape(self, z: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        """``z (B, D_z)`` and the centres ``t (B, 3)`` (read only with ``config.height_input``) -> normalised shapes
+        ``(B, M, 3)``."""
+        if self.config.height_input:
+            z = torch.cat([z, t[:, 1:2].to(z.dtype) / self.scale], dim=-1)
         return self.decoder(z).view(z.shape[0], self.config.n_decoded_points, 3)
 
     def decode(self, z: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         """``z (B, D_z)``, ``t (B, 3)`` -> world points ``(B, M, 3)`` (``shape * scale + t``)."""
-        return self.decode_shape(z) * self.scale + t.unsqueeze(1)
+        return self.decode_shape(z, t) * self.scale + t.unsqueeze(1)
 
     def elbo_loss(
         self, points: torch.Tensor, generator: torch.Generator | None
@@ -138,12 +146,12 @@ class PointCloudVAE(nn.Module):
             The scalar loss (mean over the batch) and floats ``loss``, ``reconstruction`` (normalised
             Chamfer), ``kl`` (nats per entity) and ``chamfer_world`` (the Chamfer in world units).
         """
-        shape, _ = self.normalise(points)
+        shape, t = self.normalise(points)
         z_mean, z_logvar = (value.float() for value in self.encode_shape(shape))
         with torch.autocast(device_type=shape.device.type, enabled=False):  # a caller's bf16 covers the encoder only
             noise = random_draws.randn(z_mean.shape, generator, dtype=z_mean.dtype, device=z_mean.device)
             z = z_mean + noise * torch.exp(0.5 * z_logvar)
-            reconstruction = chamfer_distance(self.decode_shape(z), shape).mean()
+            reconstruction = chamfer_distance(self.decode_shape(z, t.float()), shape).mean()
             kl = 0.5 * (z_mean.square() + z_logvar.exp() - 1.0 - z_logvar).sum(dim=-1).mean()
         loss = reconstruction + self.config.beta * kl
         metrics = {

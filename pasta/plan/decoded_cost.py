@@ -23,8 +23,9 @@ __all__ = ["decoded_chamfer_cost", "subset_decoder"]
 def subset_decoder(vae: nn.Module, n_points: int) -> nn.Sequential:
     """A frozen copy of ``vae.decoder`` that outputs only ``n_points`` of its ``M`` points, evenly strided.
 
-    ``z (B, D_z)`` -> ``(B, 3 * n_points)`` normalised coordinates, equal to the full decoder's output at
-    point slots ``0, s, 2s, ...`` with ``s = M // n_points``.
+    ``z (B, D_z)`` (with ``vae.config.height_input``: ``[z, t_y / scale]`` ``(B, D_z + 1)``, as
+    ``PointCloudVAE.decode_shape`` builds it) -> ``(B, 3 * n_points)`` normalised coordinates, equal to the full
+    decoder's output at point slots ``0, s, 2s, ...`` with ``s = M // n_points``.
     """
     n_decoded = vae.config.n_decoded_points
     if not 1 <= n_points <= n_decoded:
@@ -51,9 +52,12 @@ def decoded_chamfer_cost(vae: nn.Module, n_points: int) -> PairCostFn:
     decoder = subset_decoder(vae, n_points)
     latent_dim = vae.config.latent_dim
     scale = vae.scale.detach().clone()
+    height_input = vae.config.height_input
 
     def points(u: torch.Tensor) -> torch.Tensor:
-        return decoder(u[:, :latent_dim]).view(-1, n_points, 3) * scale + u[:, None, latent_dim:]
+        code = torch.cat([u[:, :latent_dim], u[:, latent_dim + 1 : latent_dim + 2] / scale], dim=-1) if height_input \
+            else u[:, :latent_dim]
+        return decoder(code).view(-1, n_points, 3) * scale + u[:, None, latent_dim:]
 
     def cost(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         batch = torch.broadcast_shapes(a.shape[:-1], b.shape[:-1])

@@ -62,6 +62,7 @@ def _samples(views: list[PolicyInput], chunks: list[np.ndarray]) -> PolicySample
         actions=torch.from_numpy(actions[:, 0]),
         action_chunks=torch.from_numpy(actions.reshape(len(actions), -1)),
         phases=torch.tensor([v.phase for v in views], dtype=torch.float32),
+        previous_actions=torch.from_numpy(np.stack([v.previous_action for v in views]).astype(np.float32)),
         obs_ids=[np.zeros(0, np.int64)] * len(views),
         goal_ids=[np.zeros(0, np.int64)] * len(views),
     )
@@ -87,15 +88,17 @@ def _run_problem(cfg: TaskConfig, bundle: TrainedModels, config_id: int, generat
             place_tool_for_skill(env, step.skill, inputs.mask, inputs.subgoal)
             path = scripted_path(env, tool, scripted_actions(env, step.skill, inputs.subgoal, inputs.mask))
             acting = np.zeros((0, env.action_dim))
+            applied = np.zeros(env.action_dim, dtype=np.float32)
             for k in range(n_steps):
-                view = policy_view(env, tool, indices, goal_points, inputs.goal_latents, k, rng)
+                view = policy_view(env, tool, indices, goal_points, inputs.goal_latents, k, rng, applied)
                 expert = tracking_actions(env, path, k, horizon)
                 views.append(view)
                 chunks.append(expert)
                 if len(acting) == 0:
                     acting = expert if rng.random() < expert_share else (
                         policy_action(bundle, step.skill, view).reshape(-1, env.action_dim))
-                env.step(checked_action(acting[0], step.skill, h, k))
+                applied = checked_action(acting[0], step.skill, h, k)
+                env.step(applied)
                 acting = acting[1:]
             env.settle(cfg.sim.settle_steps)
         except SimulationError:

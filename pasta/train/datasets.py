@@ -107,6 +107,7 @@ class PolicySamples:
     actions: torch.Tensor  # (B, A)
     action_chunks: torch.Tensor  # (B, H * A) the actions at t .. t + H - 1 (zeros after the last), H = chunk
     phases: torch.Tensor  # (B,) step t of the sample over the trajectory's action count, in [0, 1)
+    previous_actions: torch.Tensor  # (B, A) the action at t - 1 (zeros at t = 0)
     obs_ids: list[np.ndarray]
     goal_ids: list[np.ndarray]
 
@@ -253,9 +254,17 @@ class TransitionSampler:
             actions=torch.from_numpy(np.stack([self.demos.actions[i][t] for i, t in steps])),
             action_chunks=torch.from_numpy(np.stack([self._chunk(i, t) for i, t in steps])),
             phases=torch.tensor([t / len(self.demos.actions[i]) for i, t in steps], dtype=torch.float32),
+            previous_actions=torch.from_numpy(np.stack([self._previous(i, t) for i, t in steps])),
             obs_ids=[pairs[j][0] for j in chosen],
             goal_ids=[pairs[j][1] for j in chosen],
         )
+
+    def _previous(self, trajectory: int, t: int) -> np.ndarray:
+        """``(A,)`` float32: the action of ``trajectory`` at step ``t - 1``, zeros at its first step."""
+        actions = self.demos.actions[trajectory]
+        if t == 0:
+            return np.zeros(actions.shape[1], dtype=np.float32)
+        return np.asarray(actions[t - 1], dtype=np.float32)
 
     def _chunk(self, trajectory: int, t: int) -> np.ndarray:
         """``(chunk * A,)`` the actions of ``trajectory`` from step ``t`` on, zeros after its last step (the

@@ -129,7 +129,7 @@ def policy_forward(policy: nn.Module, spec: VariantSpec, samples: PolicySamples,
     obs, tool, goal = clouds
     if spec.tool_state_after_encoder:
         return policy(obs, goal, samples.tool_states.to(device))
-    return policy(obs, tool, goal, samples.phases.to(device))
+    return policy(obs, tool, goal, samples.phases.to(device), samples.previous_actions.to(device))
 
 
 def policy_loss(policy: nn.Module, spec: VariantSpec, settings: PolicySettings, samples: PolicySamples,
@@ -151,10 +151,14 @@ def _mirrored(samples: PolicySamples, signs: tuple[tuple[float, ...], tuple[floa
     """``samples`` each reflected at random (``pasta.train.mirror``): as they are or in x (``planes`` "x"); as
     they are, in x, in z or in both ("xz")."""
     choice = reflection_codes(len(samples), planes, generator, samples.obs_points.device)
-    obs, tool, goal, chunks = mirror_batch(samples.obs_points, samples.tool_points, samples.goal_points,
-                                           samples.action_chunks.to(samples.obs_points.device), signs, choice)
-    return dataclasses.replace(samples, obs_points=obs, tool_points=tool, goal_points=goal, action_chunks=chunks,
-                               actions=chunks[:, : samples.actions.shape[1]])
+    width = samples.actions.shape[1]
+    # The previous action is reflected with the chunk, as one more step in front of it.
+    actions = torch.cat([samples.previous_actions, samples.action_chunks], dim=1).to(samples.obs_points.device)
+    obs, tool, goal, actions = mirror_batch(samples.obs_points, samples.tool_points, samples.goal_points, actions,
+                                            signs, choice)
+    return dataclasses.replace(samples, obs_points=obs, tool_points=tool, goal_points=goal,
+                               previous_actions=actions[:, :width], action_chunks=actions[:, width:],
+                               actions=actions[:, width : 2 * width])
 
 
 def _predictions(policy: nn.Module, spec: VariantSpec, samples: PolicySamples, latents: torch.Tensor,

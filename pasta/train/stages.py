@@ -77,7 +77,8 @@ def vae_stage(cfg: TaskConfig, data: TrainingData, folder: str | Path, *, model_
     final = folder / "vae.pt"
     if final.is_file():
         return load_vae(final)
-    config = (model_config or ModelConfig()).with_latent_dim(cfg.train.latent_dim).vae
+    config = (model_config or ModelConfig()).with_latent_dim(cfg.train.latent_dim).with_vae_height_input(
+        cfg.train.vae_height_input).vae
     settings = VAESettings(epochs=cfg.train.vae_epochs, lr=cfg.train.vae_lr, precision=cfg.train.precision,
                            seed=seed)
     result = train_vae(vae_clouds(data.demos, data.table, data.vae_train),

@@ -27,6 +27,7 @@ def concat_samples(parts: Sequence[PolicySamples]) -> PolicySamples:
         actions=torch.cat([p.actions for p in parts]),
         action_chunks=torch.cat([p.action_chunks for p in parts]),
         phases=torch.cat([p.phases for p in parts]),
+        previous_actions=torch.cat([p.previous_actions for p in parts]),
         obs_ids=[i for p in parts for i in p.obs_ids],
         goal_ids=[i for p in parts for i in p.goal_ids],
     )
@@ -39,6 +40,7 @@ def take_samples(samples: PolicySamples, rows: np.ndarray) -> PolicySamples:
         obs_points=samples.obs_points[index], tool_points=samples.tool_points[index],
         goal_points=samples.goal_points[index], tool_states=samples.tool_states[index],
         actions=samples.actions[index], action_chunks=samples.action_chunks[index], phases=samples.phases[index],
+        previous_actions=samples.previous_actions[index],
         obs_ids=[samples.obs_ids[i] for i in rows], goal_ids=[samples.goal_ids[i] for i in rows],
     )
 

@@ -30,12 +30,14 @@ class ScriptedOutputs(nn.Module):
         self.outputs = outputs
         self.calls = 0
         self.phases: list[float] = []
+        self.previous: list[np.ndarray] = []  # the previous action it was given at each call
 
-    def forward(self, obs_points, tool_points, goal_points, phase):
+    def forward(self, obs_points, tool_points, goal_points, phase, previous_action):
         assert obs_points.shape == (1, 1000, 3) and tool_points.shape == (1, 100, 3) and phase.shape == (1,)
         out = torch.tensor([self.outputs[min(self.calls, len(self.outputs) - 1)]])
         self.calls += 1
         self.phases.append(float(phase))
+        self.previous.append(previous_action[0].numpy())
         return out
 
 
@@ -151,6 +153,9 @@ def test_a_chunking_policy_is_asked_once_per_chunk_and_its_actions_are_acted_out
     assert policy.phases == pytest.approx([k / n for k in range(0, n, 3)])
     for k in range(n):
         np.testing.assert_array_equal(taken[k], (first, second, third)[k % 3])
+    assert not policy.previous[0].any()  # nothing was applied before the skill's first step
+    for call, k in enumerate(range(3, n, 3), start=1):
+        np.testing.assert_array_equal(policy.previous[call], taken[k - 1])  # the action applied just before
 
 
 def test_an_ensembling_executor_asks_every_step_and_acts_the_mean_of_the_chunks_predictions(bundle, monkeypatch):
@@ -166,6 +171,8 @@ def test_an_ensembling_executor_asks_every_step_and_acts_the_mean_of_the_chunks_
     assert n == 2 and policy.calls == n
     np.testing.assert_allclose(taken[0], first)
     np.testing.assert_allclose(taken[1], (second + first) / 2, rtol=1e-6)  # call 0's second, call 1's first
+    assert not policy.previous[0].any()
+    np.testing.assert_array_equal(policy.previous[1], taken[0])  # the ensembled action applied, not a prediction
 
 
 def test_skills_left_to_the_scripts_run_their_scripted_actions_under_the_policy_executor(bundle):

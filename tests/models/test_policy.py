@@ -207,6 +207,54 @@ def test_a_phase_policy_reads_the_phase_and_refuses_to_go_without_it():
         PolicyConfig(frame="tool")
 
 
+def test_a_previous_action_policy_reads_it_and_refuses_to_go_without_it():
+    torch.manual_seed(0)
+    policy = SetPolicy(6, PolicyConfig(point_encoder="pointnet", previous_action_input=True)).eval()
+    assert policy.head[0].in_features == policy.encoder.out_dim + 6
+    gen = torch.Generator().manual_seed(7)
+    clouds = [0.4 + 0.2 * torch.rand(2, n, 3, generator=gen) for n in (64, 16, 64)]
+    with torch.no_grad():
+        still, moving = policy(*clouds, None, torch.zeros(2, 6)), policy(*clouds, None, torch.full((2, 6), 0.8))
+    assert not torch.allclose(still, moving, atol=1e-4)
+    for wrong in (None, torch.zeros(2, 5)):
+        with pytest.raises(ValueError, match="previous action"):
+            policy(*clouds, None, wrong)
+
+
+@pytest.mark.parametrize("encoder", ["pointnet2", "pointnet"])
+def test_a_heading_policy_turns_the_previous_action_into_its_frame(encoder):
+    """With ``heading_pairs`` the previous action is given in the world frame: turning the scene and the previous
+    action's horizontal vectors together turns the predicted vectors with them (the equivariance of
+    ``test_a_heading_policy_turns_its_push_with_the_scene``); turning the scene alone does not."""
+    gen = torch.Generator().manual_seed(13)
+    obs, tool = box_clouds(2, 64, gen), box_clouds(2, 16, gen)
+    goal = obs + torch.tensor([0.1, 0.0, -0.12])
+    previous = torch.tensor([[0.6, 0.1, -0.3, 0.2, 0.5, -0.4], [-0.2, 0.0, 0.7, 0.1, -0.6, 0.3]])
+    pivot, angle = torch.tensor([0.45, 0.0, 0.5]), -0.8
+    c, s = torch.cos(torch.tensor(angle)), torch.sin(torch.tensor(angle))
+
+    def turned_vectors(values: torch.Tensor) -> torch.Tensor:
+        out = values.clone()
+        for ix, iz in ((0, 2), (3, 5)):
+            out[..., ix] = c * values[..., ix] - s * values[..., iz]
+            out[..., iz] = s * values[..., ix] + c * values[..., iz]
+        return out
+
+    turned = [_turned_about_y(cloud, angle, pivot) for cloud in (obs, tool, goal)]
+    config = PolicyConfig(point_encoder=encoder, encoder=tiny_encoder(3), frame="dough", chunk=2,
+                          previous_action_input=True)
+    torch.manual_seed(0)
+    policy = SetPolicy(6, config, heading_pairs=(0, 2, 3, 5)).eval()
+    # a head that leans on the previous action, so that a wrong turn of it shows
+    with torch.no_grad():
+        policy.head[0].weight[:, -6:] *= 20.0
+        here = policy(obs, tool, goal, None, previous).reshape(2, 2, 6)
+        there = policy(*turned, None, turned_vectors(previous)).reshape(2, 2, 6)
+        unturned = policy(*turned, None, previous).reshape(2, 2, 6)
+    assert torch.allclose(there, turned_vectors(here), atol=3e-4)
+    assert not torch.allclose(unturned, turned_vectors(here), atol=3e-3)
+
+
 def test_cloud_quantiles_match_sorted_coordinates():
     gen = torch.Generator().manual_seed(3)
     cloud = torch.rand(2, 101, 3, generator=gen)

@@ -84,3 +84,22 @@ def test_encoder_matches_the_plain_mlp_and_max_with_gradients():
     assert fast_grads.keys() == plain_grads.keys() and "point_net.4.weight" in fast_grads
     for name, grad in fast_grads.items():
         torch.testing.assert_close(grad, plain_grads[name], rtol=1e-10, atol=1e-12, msg=name)
+
+
+def test_a_height_reading_decoder_moves_with_the_centre_across_the_floor_but_not_up_and_down():
+    """``height_input``: the decoder reads ``t_y / scale``, so moving a centre along x or z only translates the
+    decoded cloud, while raising it changes the decoded shape (a thicker piece rests with a higher centre); the
+    ELBO still trains."""
+    torch.manual_seed(0)
+    vae = PointCloudVAE(VAEConfig(encoder_channels=(16,), head_hidden=16, decoder_channels=(32,), n_decoded_points=30,
+                                  height_input=True))
+    assert vae.decoder[0].in_features == 3
+    points = box_clouds(16, 64, torch.Generator().manual_seed(4))
+    vae.fit_scale(points)
+    z, t = torch.randn(4, 2), points[:4].mean(dim=1)
+    across = torch.tensor([0.2, 0.0, -0.1])
+    torch.testing.assert_close(vae.decode(z, t + across), vae.decode(z, t) + across)
+    up = torch.tensor([0.0, 0.05, 0.0])
+    assert not torch.allclose(vae.decode(z, t + up), vae.decode(z, t) + up, atol=1e-4)
+    first, last = train(lambda: vae.elbo_loss(points, torch.Generator().manual_seed(0))[0], vae.parameters(), lr=3e-3)
+    assert last < 0.5 * first

@@ -17,10 +17,10 @@ from pasta.train import untrained
 PRIOR = LatentPrior(2, (0.2, 0.0, 0.2), (0.8, 0.2, 0.8))
 
 
-def _vae(dtype: torch.dtype = torch.float32) -> PointCloudVAE:
+def _vae(dtype: torch.dtype = torch.float32, height_input: bool = False) -> PointCloudVAE:
     torch.manual_seed(0)
     vae = PointCloudVAE(VAEConfig(encoder_channels=(16,), head_hidden=16, decoder_channels=(32, 32),
-                                  n_decoded_points=40)).to(dtype).eval()
+                                  n_decoded_points=40, height_input=height_input)).to(dtype).eval()
     vae.scale.fill_(0.05)
     return vae
 
@@ -34,7 +34,7 @@ def _slow_chamfer(p: torch.Tensor, q: torch.Tensor) -> float:
 def test_subset_decoder_returns_the_full_decoders_strided_points():
     vae = _vae()
     z = torch.randn(5, 2)
-    full = vae.decode_shape(z)  # (5, 40, 3)
+    full = vae.decode_shape(z, torch.zeros(5, 3))  # (5, 40, 3)
     with torch.no_grad():
         subset = subset_decoder(vae, 8)(z).view(5, 8, 3)
     torch.testing.assert_close(subset, full[:, ::5].detach())
@@ -43,8 +43,9 @@ def test_subset_decoder_returns_the_full_decoders_strided_points():
         subset_decoder(vae, 41)
 
 
-def test_decoded_cost_is_the_chamfer_distance_of_the_decoded_clouds():
-    vae = _vae()
+@pytest.mark.parametrize("height_input", [False, True])
+def test_decoded_cost_is_the_chamfer_distance_of_the_decoded_clouds(height_input):
+    vae = _vae(height_input=height_input)
     cost = decoded_chamfer_cost(vae, 10)
     gen = torch.Generator().manual_seed(1)
     a, b = PRIOR.sample((3,), gen), PRIOR.sample((3,), gen)
@@ -60,8 +61,9 @@ def test_decoded_cost_is_the_chamfer_distance_of_the_decoded_clouds():
     assert cost(torch.stack([a, b]), b).shape == (2, 3)
 
 
-def test_decoded_cost_gradients_match_finite_differences():
-    vae = _vae(torch.float64)
+@pytest.mark.parametrize("height_input", [False, True])
+def test_decoded_cost_gradients_match_finite_differences(height_input):
+    vae = _vae(torch.float64, height_input)
     cost = decoded_chamfer_cost(vae, 10)
     gen = torch.Generator().manual_seed(2)
     a = PRIOR.sample((2,), gen).double().requires_grad_(True)

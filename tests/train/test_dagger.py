@@ -60,6 +60,9 @@ def test_with_the_expert_acting_the_tool_stays_on_its_path_and_runs_repeat(setti
         torch.testing.assert_close(samples.obs_points, again[skill].obs_points)
         chunks = samples.action_chunks.reshape(-1, n, CHUNK, action_dim)
         torch.testing.assert_close(chunks[:, 1:, 0], chunks[:, :-1, 1], atol=2e-3, rtol=0)
+        previous = samples.previous_actions.reshape(-1, n, action_dim)  # what was applied the step before
+        assert not previous[:, 0].any()
+        torch.testing.assert_close(previous[:, 1:], chunks[:, :-1, 0], atol=2e-3, rtol=0)
 
 
 def test_a_share_outside_zero_to_one_is_refused(setting):

@@ -91,7 +91,7 @@ def test_missing_or_foreign_dataset_is_refused(cfg, tmp_path):
         load_demonstrations(tmp_path, cfg)
 
 
-def test_policy_samples_carry_the_next_actions_zero_after_the_trajectory_ends(cfg, training_data):
+def test_policy_samples_carry_the_next_actions_zero_after_the_trajectory_ends_and_the_previous_one(cfg, training_data):
     demos, table = training_data.demos, training_data.table
     sampler = TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table), chunk=3)
     trajectory = int(np.flatnonzero(demos.skill_index[:10] == 1)[0])
@@ -106,6 +106,9 @@ def test_policy_samples_carry_the_next_actions_zero_after_the_trajectory_ends(cf
     np.testing.assert_array_equal(chunks[2, 0], actions[last])
     assert not chunks[2, 1:].any()
     np.testing.assert_array_equal(chunks[:, 0], samples.actions.numpy())
+    previous = samples.previous_actions.numpy()
+    assert previous.shape == (3, actions.shape[1]) and not previous[0].any()  # nothing before the first step
+    np.testing.assert_array_equal(previous[1:], actions[[last - 2, last - 1]])
     with pytest.raises(ValueError, match="chunk"):
         TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table), chunk=0)
 

@@ -271,3 +271,19 @@ def test_first_steps_are_offered_first_step_weight_times_as_often(cfg):
     assert counts.tolist() == [4, 1, 1, 4, 1]
     assert np.array_equal(weighted_rows(transitions, 1), np.arange(5))
 
+
+
+def test_mirroring_reflects_the_previous_action_as_it_reflects_the_chunk(cfg, training_data):
+    """``train.policy_mirror`` with ``policy.previous_action``: the previous action is a tool motion like the
+    chunk's, so a reflected sample's previous action gets the same sign flips as its actions."""
+    sampler = TransitionSampler(training_data.demos, training_data.table, cfg.skills, training_data.heads_train,
+                                0.0, PairChamfer(training_data.table), chunk=2)
+    samples = sampler.policy_samples(0, sampler.transitions[0], np.random.default_rng(0), 16)
+    width = samples.actions.shape[1]
+    same = dataclasses.replace(samples, previous_actions=samples.actions.clone())  # previous = this step's action
+    signs = PolicySettings.from_config(cfg.model_copy(update={
+        "train": cfg.train.model_copy(update={"policy_mirror": "xz"})}), "pasta").mirror_signs
+    mirrored = policy_loop._mirrored(same, signs, "xz", torch.Generator().manual_seed(3))
+    torch.testing.assert_close(mirrored.previous_actions, mirrored.actions)
+    torch.testing.assert_close(mirrored.actions, mirrored.action_chunks[:, :width])
+    assert not torch.equal(mirrored.actions, samples.actions)  # some samples were reflected
