@@ -28,6 +28,7 @@ DEMO_METHODS = ("gbto", "scripted")  # how demonstrations are made (pasta/data/d
 TOOL_KINDS = ("box", "knife", "gripper", "rolling_pin")
 PLAN_COSTS = ("learned", "decoded")  # the planner's set cost (PlanConfig.cost)
 PLAN_GUARDS = ("none", "reach")  # what keeps planned latents where the networks were trained (PlanConfig.guard)
+REACH_VERTICAL = ("absolute", "signed")  # how the reach guard limits vertical displacement (PlanConfig.reach_vertical)
 POLICY_ENCODERS = ("pointnet2", "pointnet")  # the policies' point encoder (PolicyNetConfig.encoder)
 POLICY_FRAMES = ("world", "dough")  # where the policies' clouds are expressed (PolicyNetConfig.frame)
 
@@ -330,6 +331,9 @@ class PlanConfig(Frozen):
     # "tool": a skill whose tool moves along x and z is limited in horizontal distance (by the larger of its x and
     # z reach) and in y; the others per axis. "axes": every skill per axis.
     reach_frame: Literal["axes", "tool"] = "tool"
+    # "absolute": |d_y| limited by the largest |d_y| of the training transitions; "signed": d_y kept between their
+    # lowest and highest d_y (a spread must lower its piece as its demonstrations did: pasta.plan.reach).
+    reach_vertical: Literal[REACH_VERTICAL] = "absolute"
 
 
 class PolicyNetConfig(Frozen):
@@ -388,7 +392,7 @@ class PolicyNetConfig(Frozen):
         return self
 
 
-DecodedEntityWeights = Literal["volume", "equal"]
+DecodedEntityWeights = Literal["volume", "carried", "equal"]
 
 
 class EvalConfig(Frozen):
@@ -405,6 +409,8 @@ class EvalConfig(Frozen):
     aim_search_rollouts: int = Field(default=1, ge=1)
     # How a decoded latent set becomes one cloud for the EMDs of planned goals and subgoals: "volume", each
     # entity holding its convex hull's share of the points (the dough's particles all weigh the same);
+    # "carried", each holding the mass the plan carried to it from the observation (a step hands its attended
+    # entities' mass to its new ones, split by decoded volume only where it makes several: pasta.evaluate.plan_masses);
     # "equal", the entities stacked at the decoder's M points each, as the official decoding stacks them,
     # which on CRS's uneven cuts alone puts the goal's own pieces 0.013-0.099 from the goal.
     decoded_entity_weights: DecodedEntityWeights = "volume"

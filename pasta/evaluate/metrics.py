@@ -6,7 +6,7 @@
 * normalised performance ``(emd_initial - emd_final) / emd_initial`` and success ``performance >
   cfg.eval.success_threshold``;
 * ``emd_planned_goal``: EMD between the decoded final latent set (made one cloud of the target's size, each
-  entity holding its hull volume's share of the points: ``cfg.eval.decoded_entity_weights``) and the true
+  entity holding its share of the points by ``cfg.eval.decoded_entity_weights``) and the true
   goal; ``emd_reached_goal``: EMD between the reached observation and the true goal (the exact EMD does not
   use particle correspondence, so it equals ``emd_final``).
 
@@ -24,7 +24,7 @@ import numpy as np
 from pasta.config.schema import DecodedEntityWeights
 from pasta.data.demos import shape_distance
 from pasta.geometry.distances import earth_movers_distance
-from pasta.geometry.mass import merge_by_volume
+from pasta.geometry.mass import merge_by_shares, merge_by_volume
 
 __all__ = ["AGGREGATED", "PER_CONFIGURATION", "PLAN_QUALITY", "PLAN_QUALITY_PER_CONFIGURATION", "plan_quality_metrics",
            "planned_goal_distance", "shape_distance", "summary_metrics"]
@@ -65,21 +65,27 @@ PLAN_QUALITY_PER_CONFIGURATION: Mapping[str, str] = {
 
 
 def planned_goal_distance(decoded_final: np.ndarray, target_points: np.ndarray, seed: int,
-                          weights: DecodedEntityWeights = "volume") -> float:
+                          weights: DecodedEntityWeights = "volume", masses: np.ndarray | None = None) -> float:
     """Exact EMD between a decoded set ``(K, M, 3)``, made one cloud of the goal's size, and the goal ``(P, 3)``.
 
     ``weights="volume"``: each entity holds a share of the ``P`` points equal to its convex hull's share of the
-    volume (:func:`pasta.geometry.mass.merge_by_volume`). ``"equal"``: the ``K`` entities stacked, ``M`` points
-    each, then subsampled (the official decoding's stack), which weighs a small piece as much as a large one.
+    volume (:func:`pasta.geometry.mass.merge_by_volume`). ``"carried"``: each holds its share of ``masses``
+    ``(K,)``, the masses the plan carried to it (:mod:`pasta.evaluate.plan_masses`). ``"equal"``: the ``K``
+    entities stacked, ``M`` points each, then subsampled (the official decoding's stack), which weighs a small
+    piece as much as a large one.
     """
     rng = np.random.default_rng(seed)
     decoded = np.asarray(decoded_final, dtype=np.float64)
-    if weights == "equal":
-        return earth_movers_distance(decoded.reshape(-1, 3), target_points, rng=rng)
-    if weights != "volume":
-        raise ValueError(f"weights must be 'volume' or 'equal', got {weights!r}")
     target = np.asarray(target_points, dtype=np.float64)
-    return earth_movers_distance(merge_by_volume(decoded, len(target), rng), target, rng=rng)
+    if weights == "equal":
+        return earth_movers_distance(decoded.reshape(-1, 3), target, rng=rng)
+    if weights == "volume":
+        return earth_movers_distance(merge_by_volume(decoded, len(target), rng), target, rng=rng)
+    if weights == "carried":
+        if masses is None:
+            raise ValueError("weights 'carried' needs the plan's masses")
+        return earth_movers_distance(merge_by_shares(decoded, masses, len(target), rng), target, rng=rng)
+    raise ValueError(f"weights must be 'volume', 'carried' or 'equal', got {weights!r}")
 
 
 def _mean_of_known(values: Sequence[float]) -> float:

@@ -35,7 +35,7 @@ from pasta.evaluate.execution import decode_set
 from pasta.evaluate.ground_truth import GroundTruthPlan, ground_truth_plan
 from pasta.evaluate.metrics import planned_goal_distance
 from pasta.evaluate.selection import nearest_components
-from pasta.plan import Plan, PlanningFunctions, PlanSettings, SkillSpec, bundle_functions, frozen_parameters
+from pasta.plan import Plan, PlanningFunctions, PlanSettings, SkillSpec, frozen_parameters, settings_functions
 from pasta.plan.planner import score_of, set_cost
 from pasta.train.bundle import TrainedModels
 
@@ -169,8 +169,8 @@ def diagnostics_row(diagnostics: PlanDiagnostics | None) -> dict[str, Any]:
 
 
 def diagnose(plan: Plan, truth: GroundTruthPlan, functions: PlanningFunctions, settings: PlanSettings,
-             goal: torch.Tensor, decode: Decoder, seed: int, weights: DecodedEntityWeights = "volume"
-             ) -> PlanDiagnostics:
+             goal: torch.Tensor, decode: Decoder, seed: int, weights: DecodedEntityWeights = "volume",
+             masses: Sequence[np.ndarray] | None = None) -> PlanDiagnostics:
     """Compare ``plan`` with ``truth`` under the planner's ``functions`` and ``settings``.
 
     Args:
@@ -178,11 +178,14 @@ def diagnose(plan: Plan, truth: GroundTruthPlan, functions: PlanningFunctions, s
         decode: latents ``(K, D_z + 3)`` -> decoded clouds ``(K, M, 3)``.
         seed: subsamples the clouds of the EMDs.
         weights: how each decoded subgoal set becomes one cloud (:func:`pasta.evaluate.metrics.planned_goal_distance`).
+        masses: per ``U^0 .. U^H`` of ``plan``, its entities' masses (:mod:`pasta.evaluate.plan_masses`); needed
+            by ``weights="carried"``.
     """
     mapped = attention_in_ground_truth(plan, truth, functions.prior.latent_dim)
     same_length = len(plan.attention) == len(truth.attention)
-    subgoal_emd = tuple(planned_goal_distance(decode(u), stage, seed, weights)
-                        for u, stage in zip(plan.latent_sets[1:], truth.stages, strict=False))
+    step_masses = masses[1:] if masses is not None else [None] * (len(plan.latent_sets) - 1)
+    subgoal_emd = tuple(planned_goal_distance(decode(u), stage, seed, weights, m)
+                        for u, stage, m in zip(plan.latent_sets[1:], truth.stages, step_masses, strict=False))
     return PlanDiagnostics(
         ground_truth_skills=truth.skills,
         ground_truth_attention=truth.attention,
@@ -197,17 +200,16 @@ def diagnose(plan: Plan, truth: GroundTruthPlan, functions: PlanningFunctions, s
 
 
 def diagnose_learned_plan(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem, plan: Plan,
-                          start: EncodedScene, goal: torch.Tensor, settings: PlanSettings, seed: int
-                          ) -> PlanDiagnostics:
+                          start: EncodedScene, goal: torch.Tensor, settings: PlanSettings, seed: int,
+                          masses: Sequence[np.ndarray] | None = None) -> PlanDiagnostics:
     """Diagnose the plan an evaluation made for ``problem`` from ``start`` (the encoded settled observation) to
-    ``goal`` ``(K_g, D_z + 3)``, with the bundle's networks and the objective of ``settings``."""
+    ``goal`` ``(K_g, D_z + 3)``, with the bundle's networks and the objective of ``settings`` (``masses``: the
+    plan's, see :func:`diagnose`)."""
     chain = oracle_chain(cfg, problem.config_id, problem.generator_seed)
     rng = np.random.default_rng([seed, problem.config_id, GROUND_TRUTH_STREAM])
     truth = ground_truth_plan(cfg, bundle, chain, start, rng)
     device = next(bundle.vae.parameters()).device
     with frozen_parameters(bundle):
-        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
-                                     guard=settings.guard, reach_softness=settings.reach_softness,
-                                     planar_skills=settings.planar_skills)
+        functions = settings_functions(bundle, settings)
         return diagnose(plan, truth, functions, settings, goal.to(device), partial(decode_set, bundle), seed,
-                        cfg.eval.decoded_entity_weights)
+                        cfg.eval.decoded_entity_weights, masses)

@@ -15,6 +15,7 @@ import dataclasses
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import partial
 from types import MappingProxyType
 from typing import Any
 
@@ -28,6 +29,7 @@ from pasta.evaluate.execution import Execution, check_executor, decode_set, exec
 from pasta.evaluate.metrics import planned_goal_distance, shape_distance
 from pasta.evaluate.oracle import check_plan_source, execute_oracle, needs_models
 from pasta.evaluate.plan_diagnostics import PlanDiagnostics, diagnose_learned_plan, diagnostics_row
+from pasta.evaluate.plan_masses import observed_masses, plan_masses
 from pasta.geometry.distances import is_success, normalised_performance
 from pasta.plan import NoSkillSequenceError, Plan, PlanSettings, plan, plan_receding_horizon
 from pasta.sim.envs import make_env
@@ -170,16 +172,18 @@ def _learned_outcome(cfg: TaskConfig, bundle: TrainedModels, problem: Evaluation
         execution = Execution(steps=(), final=prepared.settled, failure=f"planning: {error}")
         return _Outcome((), (), time.perf_counter() - started, float("nan"), execution, False)
     execution = execute_plan(cfg, bundle, prepared.env, the_plan, executor, rng)
+    masses = plan_masses(the_plan, partial(decode_set, bundle),
+                         observed_masses(prepared.obs.labels, prepared.obs.n_entities))
     return _Outcome(
         skills=tuple(the_plan.skills),
         attention=tuple(tuple(int(i) for i in a) for a in the_plan.attention),
         planning_time_s=float(the_plan.planning_time_s),
         emd_planned_goal=planned_goal_distance(decode_set(bundle, the_plan.latent_sets[-1]), prepared.target, seed,
-                                               cfg.eval.decoded_entity_weights),
+                                               cfg.eval.decoded_entity_weights, masses[-1]),
         execution=execution,
         planned=True,
         diagnostics=diagnose_learned_plan(cfg, bundle, problem, the_plan, prepared.obs, prepared.goal.latents,
-                                          settings, seed),
+                                          settings, seed, masses),
     )
 
 

@@ -15,7 +15,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from pasta.geometry.distances import RandomLike, as_generator
 
-__all__ = ["apportion", "hull_volume", "merge_by_volume"]
+__all__ = ["apportion", "hull_volume", "merge_by_shares", "merge_by_volume"]
 
 
 def hull_volume(points: np.ndarray) -> float:
@@ -53,18 +53,33 @@ def apportion(weights: np.ndarray, total: int) -> np.ndarray:
 
 def merge_by_volume(clouds: np.ndarray, n_points: int, rng: RandomLike) -> np.ndarray:
     """``(K, M, 3)`` entity clouds -> one ``(n_points, 3)`` cloud, entity ``k`` holding a share of the points
-    equal to its hull volume's share of the total.
+    equal to its hull volume's share of the total (:func:`merge_by_shares`)."""
+    stack = _entity_stack(clouds)
+    return merge_by_shares(stack, np.array([hull_volume(cloud) for cloud in stack]), n_points, rng)
+
+
+def merge_by_shares(clouds: np.ndarray, shares: np.ndarray, n_points: int, rng: RandomLike) -> np.ndarray:
+    """``(K, M, 3)`` entity clouds -> one ``(n_points, 3)`` cloud, entity ``k`` holding ``shares[k] / sum(shares)``
+    of the points (``shares`` ``(K,)``, >= 0; all zero share equally).
 
     Each entity's points are drawn from its own without replacement (with replacement when it needs more than
     ``M``), with ``rng``.
     """
-    stack = np.asarray(clouds, dtype=np.float64)
-    if stack.ndim != 3 or stack.shape[2] != 3 or stack.shape[0] == 0 or stack.shape[1] == 0:
-        raise ValueError(f"clouds must have shape (K, M, 3) with K, M >= 1, got {stack.shape}")
+    stack = _entity_stack(clouds)
     if n_points < 1:
         raise ValueError(f"n_points must be >= 1, got {n_points}")
+    weights = np.asarray(shares, dtype=np.float64)
+    if weights.shape != (len(stack),):
+        raise ValueError(f"shares must have shape ({len(stack)},), one per entity, got {weights.shape}")
     gen = as_generator(rng)
-    counts = apportion(np.array([hull_volume(cloud) for cloud in stack]), n_points)
+    counts = apportion(weights, n_points)
     parts = [cloud[gen.choice(len(cloud), int(count), replace=int(count) > len(cloud))]
              for cloud, count in zip(stack, counts, strict=True) if count > 0]
     return np.concatenate(parts, axis=0)
+
+
+def _entity_stack(clouds: np.ndarray) -> np.ndarray:
+    stack = np.asarray(clouds, dtype=np.float64)
+    if stack.ndim != 3 or stack.shape[2] != 3 or stack.shape[0] == 0 or stack.shape[1] == 0:
+        raise ValueError(f"clouds must have shape (K, M, 3) with K, M >= 1, got {stack.shape}")
+    return stack

@@ -4,7 +4,7 @@ See ``docs/planning.md``.
 """
 
 from pasta.plan.attention import Structures, sample_structures
-from pasta.plan.from_bundle import bundle_functions, bundle_skills, frozen_parameters
+from pasta.plan.from_bundle import bundle_functions, bundle_skills, frozen_parameters, settings_functions
 from pasta.plan.functions import PlanningFunctions
 from pasta.plan.matching import best_matching, matched_pair_cost
 from pasta.plan.planner import plan, plan_with
@@ -34,4 +34,5 @@ __all__ = [
     "resolve_sequence",
     "sample_structures",
     "set_sizes",
+    "settings_functions",
 ]

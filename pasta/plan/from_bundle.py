@@ -14,10 +14,10 @@ from pasta.plan.decoded_cost import decoded_chamfer_cost
 from pasta.plan.functions import PlanningFunctions
 from pasta.plan.reach import reach_penalty
 from pasta.plan.sequences import SkillSpec
-from pasta.plan.settings import COSTS, GUARDS
+from pasta.plan.settings import COSTS, GUARDS, REACH_VERTICAL, PlanSettings
 from pasta.train.bundle import TrainedModels
 
-__all__ = ["bundle_functions", "bundle_skills", "frozen_parameters"]
+__all__ = ["bundle_functions", "bundle_skills", "frozen_parameters", "settings_functions"]
 
 
 @cache
@@ -42,7 +42,7 @@ def bundle_skills(bundle: TrainedModels) -> tuple[SkillSpec, ...]:
 
 def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None = None, *, cost: str = "learned",
                      cost_points: int = 64, guard: str = "none", reach_softness: float = 0.02,
-                     planar_skills: Collection[str] = ()) -> PlanningFunctions:
+                     planar_skills: Collection[str] = (), reach_vertical: str = "absolute") -> PlanningFunctions:
     """Feasibility and pair cost from the bundle's networks (on whatever device they are).
 
     Args:
@@ -55,6 +55,8 @@ def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None =
             ``reach_softness``); ``"none"``: no penalty.
         planar_skills: the skills whose reach guard limits the horizontal distance as one (their tool moves
             along x and z); the others are limited along each axis.
+        reach_vertical: ``"absolute"`` limits ``|d_y|`` by the reach; ``"signed"`` keeps ``d_y`` within the
+            bundle's ``vertical_range``.
     """
     specs = tuple(skills) if skills is not None else bundle_skills(bundle)
     names = tuple(dict.fromkeys(s.name for s in specs))
@@ -76,10 +78,24 @@ def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None =
             raise ValueError(f"plan.guard=reach needs the skills' reach, which this {bundle.task} bundle was trained "
                              "without; train it again (`pasta train` resumes and measures it) or plan with "
                              "plan.guard=none")
+        if reach_vertical not in REACH_VERTICAL:
+            raise ValueError(f"reach_vertical must be one of {list(REACH_VERTICAL)}, got {reach_vertical!r}")
+        if reach_vertical == "signed" and bundle.vertical_range is None:
+            raise ValueError(f"plan.reach_vertical=signed needs the skills' vertical range, which this {bundle.task} "
+                             "bundle was trained without; train it again (`pasta train` resumes and measures it)")
         reach = [bundle.reach[bundle.skill_index(spec.name)] for spec in specs]
+        vertical = None if reach_vertical == "absolute" else [
+            bundle.vertical_range[bundle.skill_index(spec.name)] for spec in specs]  # type: ignore[index]
         penalty = reach_penalty(reach, bundle.prior.latent_dim, reach_softness,
-                                [spec.name in planar_skills for spec in specs])
+                                [spec.name in planar_skills for spec in specs], vertical)
     return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost, penalty)
+
+
+def settings_functions(bundle: TrainedModels, settings: PlanSettings) -> PlanningFunctions:
+    """:func:`bundle_functions` with the cost and guard of ``settings``."""
+    return bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points, guard=settings.guard,
+                            reach_softness=settings.reach_softness, planar_skills=settings.planar_skills,
+                            reach_vertical=settings.reach_vertical)
 
 
 @contextmanager

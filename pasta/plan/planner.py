@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import torch
 
-from pasta.plan.from_bundle import bundle_functions, frozen_parameters
+from pasta.plan.from_bundle import frozen_parameters, settings_functions
 from pasta.plan.functions import PlanningFunctions
 from pasta.plan.matching import best_matching, matched_pair_cost
 from pasta.plan.optimiser import Candidate, optimise
@@ -124,9 +124,7 @@ def plan(bundle: TrainedModels, obs: torch.Tensor, goal: torch.Tensor, horizon: 
     started = time.perf_counter()
     bundle.to(device)
     with frozen_parameters(bundle):
-        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
-                                     guard=settings.guard, reach_softness=settings.reach_softness,
-                                     planar_skills=settings.planar_skills)
+        functions = settings_functions(bundle, settings)
         result = plan_with(functions, obs, goal, horizon, settings, device, skill_sequences)
     return Plan(result.skills, result.attention, result.latent_sets, result.feasibilities, result.cost,
                 result.score, time.perf_counter() - started, result.penalties)

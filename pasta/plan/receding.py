@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import torch
 
-from pasta.plan.from_bundle import bundle_functions, frozen_parameters
+from pasta.plan.from_bundle import frozen_parameters, settings_functions
 from pasta.plan.functions import PlanningFunctions
 from pasta.plan.optimiser import optimise
 from pasta.plan.planner import check_set, describe, score_of, set_cost
@@ -75,9 +75,7 @@ def plan_receding_horizon(bundle: TrainedModels, obs: torch.Tensor, goal: torch.
     started = time.perf_counter()
     bundle.to(device)
     with frozen_parameters(bundle):
-        functions = bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points,
-                                     guard=settings.guard, reach_softness=settings.reach_softness,
-                                     planar_skills=settings.planar_skills)
+        functions = settings_functions(bundle, settings)
         result = plan_receding_horizon_with(functions, obs, goal, skill_sequence, window, settings, device)
     return Plan(result.skills, result.attention, result.latent_sets, result.feasibilities, result.cost,
                 result.score, time.perf_counter() - started, result.penalties)

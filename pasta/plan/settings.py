@@ -6,10 +6,10 @@ from dataclasses import dataclass
 
 from pasta.config.schema import PLAN_COSTS as COSTS
 from pasta.config.schema import PLAN_GUARDS as GUARDS
-from pasta.config.schema import TaskConfig
+from pasta.config.schema import REACH_VERTICAL, TaskConfig
 from pasta.plan.reach import planar_skills
 
-__all__ = ["COSTS", "DEFAULT_HALVING", "GUARDS", "PlanSettings"]
+__all__ = ["COSTS", "DEFAULT_HALVING", "GUARDS", "REACH_VERTICAL", "PlanSettings"]
 
 # Fractions of the iterations after which the worse half of the surviving samples is dropped
 # (successive halving; see docs/planning.md for the measurements behind this choice).
@@ -40,6 +40,7 @@ class PlanSettings:
         reach_softness: how far beyond the reach the guard's factor falls to ``exp(-1)``.
         planar_skills: the skills whose reach guard limits the horizontal distance as one, not x and z apart
             (:func:`pasta.plan.reach.planar_skills`).
+        reach_vertical: ``"absolute"`` or ``"signed"`` (:func:`pasta.plan.reach.reach_penalty`).
     """
 
     lr: float
@@ -56,6 +57,7 @@ class PlanSettings:
     guard: str = "none"
     reach_softness: float = 0.02
     planar_skills: frozenset[str] = frozenset()
+    reach_vertical: str = "absolute"
 
     def __post_init__(self) -> None:
         if self.lr <= 0:
@@ -82,6 +84,8 @@ class PlanSettings:
             raise ValueError(f"guard must be one of {list(GUARDS)}, got {self.guard!r}")
         if self.reach_softness <= 0:
             raise ValueError(f"reach_softness must be > 0, got {self.reach_softness}")
+        if self.reach_vertical not in REACH_VERTICAL:
+            raise ValueError(f"reach_vertical must be one of {list(REACH_VERTICAL)}, got {self.reach_vertical!r}")
 
     @classmethod
     def from_config(cls, cfg: TaskConfig, *, halving: tuple[float, ...] = DEFAULT_HALVING, seed: int = 0
@@ -93,7 +97,7 @@ class PlanSettings:
         return cls(lr=cfg.plan.lr, iterations=cfg.plan.iterations, samples=cfg.plan.samples,
                    alpha=alpha, seed=seed, halving=halving,
                    cost=cfg.plan.cost, cost_points=cfg.plan.cost_points, guard=cfg.plan.guard,
-                   reach_softness=cfg.plan.reach_softness,
+                   reach_softness=cfg.plan.reach_softness, reach_vertical=cfg.plan.reach_vertical,
                    planar_skills=planar_skills(cfg) if cfg.plan.reach_frame == "tool" else frozenset())
 
     def halving_iterations(self) -> frozenset[int]:

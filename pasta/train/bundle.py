@@ -73,6 +73,9 @@ class TrainedModels:
         reach: per skill, the largest displacement along x, y and z of an output entity's centre from the nearest
             input entity's centre over the training transitions (:mod:`pasta.plan.reach`; ``nan`` for a skill
             without any); ``None`` for a bundle trained before it was measured.
+        vertical_range: per skill, the lowest and highest signed vertical displacement of an output entity's centre
+            over the same transitions (:func:`pasta.plan.reach.skill_vertical_range`); ``None`` for a bundle
+            trained before it was measured.
     """
 
     task: str
@@ -84,6 +87,7 @@ class TrainedModels:
     filter_epsilon: float
     models: dict[str, nn.Module]
     reach: tuple[tuple[float, float, float], ...] | None = None
+    vertical_range: tuple[tuple[float, float], ...] | None = None
 
     def __post_init__(self) -> None:
         variant_spec(self.variant)
@@ -91,6 +95,9 @@ class TrainedModels:
             raise ValueError(f"reach has {len(self.reach)} values for {len(self.skill_names)} skills")
         if self.reach is not None and any(len(r) != 3 for r in self.reach):
             raise ValueError(f"each skill's reach must be (x, y, z), got {self.reach}")
+        if self.vertical_range is not None and (len(self.vertical_range) != len(self.skill_names)
+                                                or any(len(r) != 2 for r in self.vertical_range)):
+            raise ValueError(f"vertical_range must hold a (lowest, highest) pair per skill, got {self.vertical_range}")
         for key in ("vae", "feasibility", "cost", "policy"):
             if key not in self.models:
                 raise ValueError(f"models lacks {key!r}; has {sorted(self.models)}")
@@ -142,6 +149,7 @@ class TrainedModels:
                       "t_high": list(self.prior.t_high)},
             "filter_epsilon": self.filter_epsilon,
             "reach": None if self.reach is None else [list(r) for r in self.reach],
+            "vertical_range": None if self.vertical_range is None else [list(r) for r in self.vertical_range],
         }
 
 
@@ -196,5 +204,7 @@ def load_trained(path: str | os.PathLike[str], map_location: str | torch.device 
         filter_epsilon=float(meta["filter_epsilon"]),
         models=models,
         reach=None if meta.get("reach") is None else tuple(tuple(float(v) for v in r) for r in meta["reach"]),
+        vertical_range=None if meta.get("vertical_range") is None
+        else tuple(tuple(float(v) for v in r) for r in meta["vertical_range"]),
     )
     return bundle.to(map_location).eval()

@@ -100,7 +100,12 @@ def encode_entities(vae: PointCloudVAE, clouds: torch.Tensor, device: torch.devi
 
 @dataclass(frozen=True, eq=False)
 class HeldOut:
-    """Fixed held-out samples per skill (drawn once with a fixed seed): positives, policy samples, cost pairs."""
+    """Fixed held-out samples per skill (drawn once with a fixed seed): positives, policy samples, cost pairs.
+
+    Up to ``max_policy`` policy samples per skill: at ``small`` that is every valid sample of the held-out
+    trajectories (LiftSpread's spread has 50). The earlier 32 measured LiftSpread's spread at 0.18x the zero
+    action's MSE where all 50 gave 0.33x.
+    """
 
     positives: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None]
     policy: list[PolicySamples | None]
@@ -110,7 +115,7 @@ class HeldOut:
 
     @classmethod
     def build(cls, sampler: TransitionSampler, latents: torch.Tensor, *, max_rows: int = 512,
-              max_policy: int = 32, seed: int = 12345) -> HeldOut:
+              max_policy: int = 256, seed: int = 12345) -> HeldOut:
         rng = np.random.default_rng(seed)
         positives, policy, cost_a, cost_b, cost_t = [], [], [], [], []
         for k in range(len(sampler.skills)):

@@ -42,12 +42,13 @@ from pasta.train.metrics import action_mse
 from pasta.train.mirror import mirror_action_signs, mirror_batch, reflection_codes
 from pasta.train.precision import check_precision, training_autocast
 from pasta.train.progress import EpochCallback, epoch_generators
-from pasta.train.visits import VisitPool, concat_samples
+from pasta.train.visits import VisitPool, concat_samples, take_samples
 
 __all__ = ["PolicyResult", "PolicySettings", "evaluate_policies", "heldout_mse", "lr_at", "policy_forward",
            "policy_loss", "policy_progress_path", "train_policies", "weighted_rows"]
 
 ROWS_PER_SAMPLE = 4  # transitions offered per wanted sample: filtering rejects some (empty or wrong counts)
+PREDICTION_BATCH = 64  # held-out samples per forward pass (PointNet++'s grouped tensors grow with the batch)
 
 
 @dataclass(frozen=True)
@@ -164,10 +165,15 @@ def _mirrored(samples: PolicySamples, signs: tuple[tuple[float, ...], tuple[floa
 def _predictions(policy: nn.Module, spec: VariantSpec, samples: PolicySamples, latents: torch.Tensor,
                  latent_dim: int) -> np.ndarray:
     """Noise-free actions ``(B, A)`` of ``policy`` at the samples' own step (the first of a chunk; eval mode, no
-    gradient)."""
+    gradient), ``PREDICTION_BATCH`` samples at a time."""
     policy.eval()
+    width = samples.actions.shape[1]
+    parts = []
     with torch.no_grad():
-        return policy_forward(policy, spec, samples, latents, latent_dim)[:, : samples.actions.shape[1]].cpu().numpy()
+        for start in range(0, len(samples), PREDICTION_BATCH):
+            part = take_samples(samples, np.arange(start, min(start + PREDICTION_BATCH, len(samples))))
+            parts.append(policy_forward(policy, spec, part, latents, latent_dim)[:, :width].cpu().numpy())
+    return np.concatenate(parts)
 
 
 def heldout_mse(policy: nn.Module, spec: VariantSpec, samples: PolicySamples, latents: torch.Tensor,

@@ -38,18 +38,34 @@ def _box(rng: np.random.Generator, low, size, n: int) -> np.ndarray:
     return np.asarray(low) + rng.uniform(size=(n, 3)) * np.asarray(size)
 
 
-def test_a_goal_of_uneven_pieces_comes_back_close_only_when_each_piece_keeps_its_share_of_the_mass():
+def _block_and_sheet(sheet_height: float) -> tuple[np.ndarray, np.ndarray]:
+    """A CRS-like goal ``(1000, 3)``: a block and a flat sheet with a quarter of its volume, particles of equal
+    mass; and its two pieces decoded ``(2, 1000, 3)``, the sheet ``sheet_height`` thick."""
     rng = np.random.default_rng(0)
-    # A CRS-like goal: a block and a flat sheet with a quarter of its volume, particles of equal mass.
     block = _box(rng, (0.2, 0.0, 0.4), (0.1, 0.08, 0.1), 800)
     sheet = _box(rng, (0.6, 0.0, 0.4), (0.2, 0.01, 0.1), 200)
-    goal = np.concatenate([block, sheet])
     decoded = np.stack([_box(rng, (0.2, 0.0, 0.4), (0.1, 0.08, 0.1), 1000),
-                        _box(rng, (0.6, 0.0, 0.4), (0.2, 0.01, 0.1), 1000)])
+                        _box(rng, (0.6, 0.0, 0.4), (0.2, sheet_height, 0.1), 1000)])
+    return np.concatenate([block, sheet]), decoded
+
+
+def test_a_goal_of_uneven_pieces_comes_back_close_only_when_each_piece_keeps_its_share_of_the_mass():
+    goal, decoded = _block_and_sheet(0.01)
     weighted = planned_goal_distance(decoded, goal, seed=0)
     stacked = planned_goal_distance(decoded, goal, seed=0, weights="equal")
     assert stacked > 0.1  # 30 % of the mass sent 0.45 across
     assert weighted < 0.02
+
+
+def test_carried_masses_put_the_flat_sheet_back_to_its_share_where_its_volume_would_not():
+    # The decoder made the sheet as thick as the block: its hull holds 2 / 3 of the volume instead of 1 / 5.
+    goal, decoded = _block_and_sheet(0.08)
+    by_volume = planned_goal_distance(decoded, goal, seed=0)
+    carried = planned_goal_distance(decoded, goal, seed=0, weights="carried", masses=np.array([0.8, 0.2]))
+    assert by_volume > 0.1
+    assert carried < by_volume / 2
+    with pytest.raises(ValueError, match="masses"):
+        planned_goal_distance(decoded, goal, seed=0, weights="carried")
 
 
 def test_planned_goal_distance_rejects_an_unknown_weighting():

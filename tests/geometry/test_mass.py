@@ -7,7 +7,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from pasta.geometry.mass import apportion, hull_volume, merge_by_volume
+from pasta.geometry.mass import apportion, hull_volume, merge_by_shares, merge_by_volume
 
 
 def _box(rng: np.random.Generator, low, size, n: int) -> np.ndarray:
@@ -60,3 +60,13 @@ def test_merge_by_volume_gives_each_entity_its_share_of_the_points():
     assert int(from_small.sum()) == 10
     assert len(np.unique(merged[~from_small], axis=0)) == 80  # drawn without replacement
     assert merge_by_volume(np.stack([big, small]), 90, rng=0) == pytest.approx(merged)  # seeded
+
+
+def test_merge_by_shares_follows_the_given_shares_not_the_volumes():
+    rng = np.random.default_rng(2)
+    big = _box(rng, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 100)
+    small = _box(rng, (5.0, 0.0, 0.0), (0.5, 0.5, 0.5), 100)
+    merged = merge_by_shares(np.stack([big, small]), np.array([1.0, 3.0]), 80, rng=0)
+    assert int((merged[:, 0] >= 5.0).sum()) == 60
+    with pytest.raises(ValueError, match=r"\(2,\)"):
+        merge_by_shares(np.stack([big, small]), np.array([1.0, 1.0, 1.0]), 80, rng=0)

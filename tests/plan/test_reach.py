@@ -12,7 +12,7 @@ import torch
 from pasta.config import load
 from pasta.models.latent_prior import LatentPrior
 from pasta.plan import PlanningFunctions, PlanSettings, SkillSpec, bundle_functions, plan_with
-from pasta.plan.reach import output_displacements, planar_skills, reach_penalty, skill_reach
+from pasta.plan.reach import output_displacements, planar_skills, reach_penalty, skill_reach, skill_vertical_range
 from pasta.train.bundle import load_trained, save_trained, untrained
 from tests.models.synthetic import tiny_model_config
 
@@ -137,3 +137,44 @@ def test_a_bundle_carries_its_reach_and_the_guard_needs_it(tmp_path):
     with pytest.raises(ValueError, match="guard must be one of"):
         bundle_functions(loaded, guard="box")
     assert PlanSettings.from_config(load("CutRearrange", "smoke", ["plan.guard=reach"])).guard == "reach"
+
+
+def test_the_vertical_range_is_the_lowest_and_highest_signed_drop():
+    spread = (torch.tensor([[0.5, 0.10, 0.5]]), torch.tensor([[0.5, 0.08, 0.5]]))
+    deeper = (torch.tensor([[0.5, 0.10, 0.5]]), torch.tensor([[0.52, 0.079, 0.5]]))
+    assert skill_vertical_range([spread, deeper]) == pytest.approx((-0.021, -0.02))
+    assert all(math.isnan(v) for v in skill_vertical_range([]))
+
+
+def test_the_signed_guard_penalises_a_spread_that_does_not_lower_its_piece():
+    """CRS's spreads lowered their pieces' centres by 0.0186-0.0215 at small; the planner put a spread that left
+    the dough as it was first and made the flat piece elsewhere. Absolute, |d_y| = 0 is within the reach; signed,
+    it is 0.0186 above the range."""
+    reach, vertical = [(0.003, 0.0215, 0.002)], [(-0.0215, -0.0186)]
+    inputs = torch.tensor([[[0.0, 0.0, 0.5, 0.10, 0.5]]]).expand(3, 1, 5)
+    outputs = torch.tensor([[[0.0, 0.0, 0.5, 0.10, 0.5]],  # a spread that does nothing
+                            [[0.0, 0.0, 0.5, 0.080, 0.5]],  # a spread as the demonstrations spread
+                            [[0.0, 0.0, 0.5, 0.06, 0.5]]])  # one that goes 0.0185 deeper than any
+    absolute = reach_penalty(reach, latent_dim=2, softness=0.01)(0, inputs, outputs)
+    signed = reach_penalty(reach, latent_dim=2, softness=0.01, vertical=vertical)(0, inputs, outputs)
+    torch.testing.assert_close(absolute, torch.tensor([0.0, 0.0, 1.85 ** 2]), rtol=1e-3, atol=1e-3)
+    torch.testing.assert_close(signed, torch.tensor([1.86 ** 2, 0.0, 1.85 ** 2]), rtol=1e-3, atol=1e-3)
+    with pytest.raises(ValueError, match="a \\(lowest, highest\\) pair for each of 1 skills"):
+        reach_penalty(reach, latent_dim=2, softness=0.01, vertical=[(-0.01, -0.02)])
+
+
+def test_a_bundle_carries_its_vertical_range_and_the_signed_guard_needs_it(tmp_path):
+    cfg = load("CutRearrange", "smoke")
+    bundle = dataclasses.replace(untrained(cfg, "pasta", PRIOR, model_config=tiny_model_config(), seed=0),
+                                 reach=((0.2, 0.01, 0.02), (0.3, 0.01, 0.3)))
+    with pytest.raises(ValueError, match="vertical range, which this CutRearrange bundle was trained without"):
+        bundle_functions(bundle, guard="reach", reach_vertical="signed")
+    ranged = dataclasses.replace(bundle, vertical_range=((-0.008, -0.001), (-0.002, 0.004)))
+    loaded = load_trained(save_trained(tmp_path / "models.pt", ranged))
+    assert [list(r) for r in loaded.vertical_range] == [pytest.approx([-0.008, -0.001]), pytest.approx([-0.002, 0.004])]
+    functions = bundle_functions(loaded, guard="reach", reach_softness=0.01, reach_vertical="signed")
+    u, same = torch.zeros(1, 1, 5), torch.zeros(1, 2, 5)
+    torch.testing.assert_close(functions.step_penalty(0, u, same), torch.tensor([2 * 0.1 ** 2]))  # 0.001 above
+    with pytest.raises(ValueError, match="reach_vertical must be one of"):
+        bundle_functions(loaded, guard="reach", reach_vertical="up")
+    assert PlanSettings.from_config(load("CRS", "smoke", ["plan.reach_vertical=signed"])).reach_vertical == "signed"
