@@ -172,14 +172,17 @@ def _learned_outcome(cfg: TaskConfig, bundle: TrainedModels, problem: Evaluation
         execution = Execution(steps=(), final=prepared.settled, failure=f"planning: {error}")
         return _Outcome((), (), time.perf_counter() - started, float("nan"), execution, False)
     execution = execute_plan(cfg, bundle, prepared.env, the_plan, executor, rng)
+    # Only the carried weighting reads the plan's masses (each step decoded and its hulls measured).
     masses = plan_masses(the_plan, partial(decode_set, bundle),
-                         observed_masses(prepared.obs.labels, prepared.obs.n_entities))
+                         observed_masses(prepared.obs.labels, prepared.obs.n_entities)
+                         ) if cfg.eval.decoded_entity_weights == "carried" else None
     return _Outcome(
         skills=tuple(the_plan.skills),
         attention=tuple(tuple(int(i) for i in a) for a in the_plan.attention),
         planning_time_s=float(the_plan.planning_time_s),
         emd_planned_goal=planned_goal_distance(decode_set(bundle, the_plan.latent_sets[-1]), prepared.target, seed,
-                                               cfg.eval.decoded_entity_weights, masses[-1]),
+                                               cfg.eval.decoded_entity_weights,
+                                               None if masses is None else masses[-1]),
         execution=execution,
         planned=True,
         diagnostics=diagnose_learned_plan(cfg, bundle, problem, the_plan, prepared.obs, prepared.goal.latents,

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from pasta.config import load
 from pasta.data.configurations import evaluation_problem, oracle_chain
 from pasta.evaluate.encoding import encode_scene
 from pasta.evaluate.ground_truth import GroundTruthPlan, ground_truth_plan
@@ -24,6 +25,7 @@ from pasta.evaluate.plan_diagnostics import (
 )
 from pasta.evaluate.problem import evaluate_problem
 from pasta.plan import Plan, PlanSettings, plan_with
+from tests.evaluate.conftest import FAST
 from tests.plan.analytic import FUNCTIONS, GOAL, HALF_AT_STATION, HALF_MOVED, OBS, P, R
 
 SETTINGS = PlanSettings(lr=0.05, iterations=20, samples=32, alpha=10.0)
@@ -164,3 +166,10 @@ def test_an_evaluated_learned_plan_carries_its_diagnostics_into_its_row(cfg, bun
     assert row["verdict"] == found.verdict and row["attention"] == [list(a) for a in result.attention]
     oracle = evaluate_problem(cfg, None, problem, 0, "scripted", PlanSettings.from_config(cfg), "oracle")
     assert oracle.diagnostics is None and "verdict" not in oracle.row()
+
+
+def test_a_learned_plan_evaluated_with_carried_weights_measures_its_goal_by_the_plans_masses(bundle):
+    cfg = load("CutRearrange", "smoke", [*FAST, "eval.decoded_entity_weights=carried"])
+    result = evaluate_problem(cfg, bundle, evaluation_problem(cfg, 0), 0, "scripted", PlanSettings.from_config(cfg))
+    assert np.isfinite(result.emd_planned_goal)
+    assert result.diagnostics.subgoal_emd[-1] == pytest.approx(result.emd_planned_goal)
