@@ -172,10 +172,10 @@ def _learned_outcome(cfg: TaskConfig, bundle: TrainedModels, problem: Evaluation
         execution = Execution(steps=(), final=prepared.settled, failure=f"planning: {error}")
         return _Outcome((), (), time.perf_counter() - started, float("nan"), execution, False)
     execution = execute_plan(cfg, bundle, prepared.env, the_plan, executor, rng)
-    # Only the carried weighting reads the plan's masses (each step decoded and its hulls measured).
-    masses = plan_masses(the_plan, partial(decode_set, bundle),
-                         observed_masses(prepared.obs.labels, prepared.obs.n_entities)
-                         ) if cfg.eval.decoded_entity_weights == "carried" else None
+    masses = None
+    if cfg.eval.decoded_entity_weights == "carried":  # the only weighting that reads them (each step decoded)
+        masses = plan_masses(the_plan, partial(decode_set, bundle),
+                             observed_masses(prepared.obs.labels, prepared.obs.n_entities))
     return _Outcome(
         skills=tuple(the_plan.skills),
         attention=tuple(tuple(int(i) for i in a) for a in the_plan.attention),
