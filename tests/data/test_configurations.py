@@ -155,7 +155,7 @@ def test_schedule_counts_at_every_profile(task, profile):
 def test_small_profile_generates_its_count():
     cfg = cfg_of("CRS", "small")
     problems = generate_skill_problems(cfg)
-    assert len(problems) == 24 and Counter(p.skill for p in problems) == {"cut": 8, "push": 8, "spread": 8}
+    assert len(problems) == 120 and Counter(p.skill for p in problems) == {"cut": 40, "push": 40, "spread": 40}
     assert all(p.initial.particles.shape == (5000, 3) for p in problems)
 
 
