@@ -291,6 +291,11 @@ class TrainConfig(Frozen):
     # feasibility positives and the policy samples alike. True: keep the observed entity farthest from its
     # nearest goal entity, and that goal entity. False (the official): drop the sample.
     filter_keeps_acted: bool = False
+    # Share of the policies' training samples whose goal cloud is the VAE's reconstruction of the goal entities
+    # (each entity encoded and decoded, as many points per entity) instead of their observed points. A learned
+    # plan hands the policy executor decoded subgoals, smoother and weighted per entity rather than per mass;
+    # the held-out samples keep the observed goals. 0: observed goals only (the appendix's training).
+    policy_decoded_goal_share: float = Field(default=0.0, ge=0.0, le=1.0)
     # DAgger rounds after the policies' own loop (pasta/train/dagger.py; 0: none, the appendix's behaviour
     # cloning alone): each runs the oracle chains of dagger_problems fresh problems with the current policies
     # (the expert's action chunk instead at a share dagger_expert_share of the calls), labels every visited

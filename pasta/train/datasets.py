@@ -13,7 +13,8 @@
     hindsight step ``t' ~ U{t, ..., T-1}``; both filtered (every entity in a pair closer than epsilon
     goes, model_spec §0.4) and kept only if exactly ``(N_in, N_out)`` entities remain (any counts
     without filtering);
-  - policy sample: goal = the trajectory's target with probability 0.5, else a hindsight state; filtered
+  - policy sample: goal = the trajectory's target with probability 0.5, else a hindsight state (its cloud
+    observed, or at a configured share the VAE's reconstruction of its entities: ``DecodedGoals``); filtered
     with epsilon except for splitting skills (``N_out > N_in``, the official cut), kept when both sides
     are non-empty with counts in ``{N_in, N_out}``; action = the demonstration's action at ``t``;
   - cost pairs: a random entity at ``t`` against a random entity of the trajectory's target, plus as
@@ -29,11 +30,13 @@ import torch
 
 from pasta.config.schema import SkillConfig
 from pasta.data.storage import split_by_configuration
+from pasta.geometry.entities import resample
 from pasta.train.demos import Demonstrations
 from pasta.train.entities import EntityTable, PairChamfer, state_cloud
 
 __all__ = [
     "CostPairs",
+    "DecodedGoals",
     "FeasibilityPositives",
     "PolicySamples",
     "TransitionSampler",
@@ -124,6 +127,30 @@ class CostPairs:
     chamfer: torch.Tensor
 
 
+@dataclass(frozen=True, eq=False)
+class DecodedGoals:
+    """The VAE's reconstruction of every entity of an ``EntityTable``, for policy goals like a learned plan's.
+
+    Attributes:
+        clouds: ``(N, M, 3)`` float32 decoded entity clouds, world frame, in table order.
+        share: share of policy samples whose goal cloud comes from ``clouds``.
+    """
+
+    clouds: np.ndarray
+    share: float
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.share <= 1.0:
+            raise ValueError(f"share must lie in [0, 1], got {self.share}")
+        if self.clouds.ndim != 3 or self.clouds.shape[2] != 3:
+            raise ValueError(f"clouds must have shape (N, M, 3), got {self.clouds.shape}")
+
+    def cloud(self, entity_ids: np.ndarray, n_points: int, rng: np.random.Generator) -> np.ndarray:
+        """``(n_points, 3)``: the given entities' decoded clouds stacked (as many points each, as the policy
+        executor stacks a plan's decoded subgoals) and resampled."""
+        return resample(self.clouds[np.asarray(entity_ids)].reshape(-1, 3), n_points, rng)
+
+
 class TransitionSampler:
     """Per-skill transitions of some trajectories, and the samples of the three heads drawn from them.
 
@@ -142,16 +169,22 @@ class TransitionSampler:
         keep_acted: where filtering would leave no observed entity, keep the observed entity farthest from its
             nearest goal entity and that goal entity (``cfg.train.filter_keeps_acted``; the official drops the
             sample).
+        decoded_goals: every table entity's VAE reconstruction and the share of policy samples whose goal cloud
+            is built from it (``cfg.train.policy_decoded_goal_share``); ``None``: observed goals only.
     """
 
     def __init__(self, demos: Demonstrations, table: EntityTable, skills: tuple[SkillConfig, ...],
                  trajectories: np.ndarray, filter_epsilon: float, chamfer: PairChamfer,
                  cloud_points: int | None = None, chunk: int = 1,
-                 hindsight_ratio: float = HINDSIGHT_GOAL_RATIO, keep_acted: bool = False) -> None:
+                 hindsight_ratio: float = HINDSIGHT_GOAL_RATIO, keep_acted: bool = False,
+                 decoded_goals: DecodedGoals | None = None) -> None:
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1, got {chunk}")
         if not 0.0 <= hindsight_ratio <= 1.0:
             raise ValueError(f"hindsight_ratio must lie in [0, 1], got {hindsight_ratio}")
+        if decoded_goals is not None and len(decoded_goals.clouds) != len(table):
+            raise ValueError(f"decoded_goals holds {len(decoded_goals.clouds)} entity clouds, the table {len(table)}")
+        self.decoded_goals = decoded_goals
         self.hindsight_ratio = hindsight_ratio
         self.demos, self.table, self.skills = demos, table, skills
         self.chunk = chunk
@@ -241,10 +274,16 @@ class TransitionSampler:
         if not chosen:
             return None
         n_points = self.cloud_points
+        decoded = self.decoded_goals
+        use_decoded = (rng.random(len(chosen)) < decoded.share if decoded is not None and decoded.share > 0
+                       else np.zeros(len(chosen), dtype=bool))
         obs_pts, goal_pts = [], []
-        for j in chosen:
+        for j, from_decoder in zip(chosen, use_decoded, strict=True):
             obs_pts.append(state_cloud(self.demos, self.table, pairs[j][0], n_points, rng))
-            goal_pts.append(state_cloud(self.demos, self.table, pairs[j][1], n_points, rng))
+            if from_decoder:
+                goal_pts.append(decoded.cloud(pairs[j][1], n_points, rng))
+            else:
+                goal_pts.append(state_cloud(self.demos, self.table, pairs[j][1], n_points, rng))
         steps = [(int(i), int(t)) for i, t in rows[chosen]]
         return PolicySamples(
             obs_points=torch.from_numpy(np.stack(obs_pts)),

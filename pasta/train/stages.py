@@ -24,10 +24,17 @@ from pasta.models.model_config import ModelConfig
 from pasta.models.variants import variant_spec
 from pasta.plan.reach import skill_reach, skill_vertical_range
 from pasta.train.bundle import DEFAULT_FILTER_EPSILON
-from pasta.train.datasets import TransitionSampler, split_trajectories, vae_clouds
+from pasta.train.datasets import DecodedGoals, TransitionSampler, split_trajectories, vae_clouds
 from pasta.train.demos import Demonstrations, load_demonstrations
 from pasta.train.entities import EntityTable, PairChamfer, build_entity_table
-from pasta.train.heads_loop import HeadsResult, HeadsSettings, HeldOut, encode_entities, train_heads
+from pasta.train.heads_loop import (
+    HeadsResult,
+    HeadsSettings,
+    HeldOut,
+    decode_entities,
+    encode_entities,
+    train_heads,
+)
 from pasta.train.progress import EpochCallback
 from pasta.train.vae_loop import VAEResult, VAESettings, load_vae, save_vae, train_vae
 
@@ -102,8 +109,12 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     epsilon = DEFAULT_FILTER_EPSILON if spec.filter_entities else 0.0
     points, chunk, hindsight = cfg.policy.points, cfg.policy.chunk, cfg.train.policy_hindsight_ratio
     keep_acted = cfg.train.filter_keeps_acted
+    decoded = None
+    if cfg.train.policy_decoded_goal_share > 0 and not spec.policy_on_latents:
+        decoded = DecodedGoals(decode_entities(vae, latents, cfg.train.latent_dim),
+                               cfg.train.policy_decoded_goal_share)
     train_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_train, epsilon, chamfer, points,
-                                      chunk, hindsight, keep_acted)
+                                      chunk, hindsight, keep_acted, decoded)
     test_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_heldout, epsilon, chamfer, points,
                                      chunk, hindsight, keep_acted)
     train_states = np.concatenate([np.arange(data.demos.first_state[i], data.demos.target_state[i] + 1)

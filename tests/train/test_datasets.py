@@ -6,7 +6,7 @@ import torch
 
 from pasta.data.storage import DatasetError
 from pasta.geometry.distances import chamfer_distance
-from pasta.train.datasets import TransitionSampler, pad_sets, split_trajectories, vae_clouds
+from pasta.train.datasets import DecodedGoals, TransitionSampler, pad_sets, split_trajectories, vae_clouds
 from pasta.train.demos import load_demonstrations
 from pasta.train.entities import PairChamfer, state_cloud
 from tests.train.conftest import ENTITY_POINTS
@@ -145,6 +145,40 @@ def test_the_hindsight_ratio_sets_how_many_policy_goals_are_later_states(cfg, tr
     assert sum(g == t for g, t in zip(goals[1.0], [t for t in targets for _ in range(8)], strict=True)) < len(rows) * 8
     with pytest.raises(ValueError, match="hindsight_ratio.*1.5"):
         TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table), hindsight_ratio=1.5)
+
+
+def test_decoded_goal_clouds_weigh_every_entity_alike():
+    """A decoded goal stacks as many points of each entity as the policy executor stacks a plan's subgoals."""
+    clouds = np.zeros((3, 200, 3), np.float32)
+    clouds[1] += 1.0
+    clouds[2] += 2.0
+    cloud = DecodedGoals(clouds, 1.0).cloud(np.array([0, 2]), 100, np.random.default_rng(0))
+    assert cloud.shape == (100, 3)
+    assert set(np.unique(cloud[:, 0]).tolist()) == {0.0, 2.0}
+    assert 30 <= int((cloud[:, 0] == 0.0).sum()) <= 70
+    with pytest.raises(ValueError, match="share.*1.5"):
+        DecodedGoals(clouds, 1.5)
+
+
+def test_the_decoded_goal_share_sets_how_many_policy_goals_come_from_the_decoder(cfg, training_data):
+    """Share 1: every goal cloud is drawn from the decoded entities (here the entities lifted by 10), the
+    observations never; share 0: none; a table of another size is refused."""
+    demos, table = training_data.demos, training_data.table
+    lifted = table.clouds.numpy() + np.array([0.0, 10.0, 0.0], np.float32)
+    rows = np.repeat(np.array([[i, 0] for i in range(10) if demos.skill_index[i] == 0]), 4, axis=0)
+    lifted_goals = {}
+    for share in (0.0, 0.5, 1.0):
+        sampler = TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table),
+                                    decoded_goals=DecodedGoals(lifted, share))
+        samples = sampler.policy_samples(0, rows, np.random.default_rng(2), limit=len(rows))
+        assert (samples.obs_points[..., 1] < 5).all()
+        goal_heights = samples.goal_points[..., 1]
+        assert ((goal_heights > 5).all(dim=1) | (goal_heights < 5).all(dim=1)).all()
+        lifted_goals[share] = int((goal_heights > 5).all(dim=1).sum())
+    assert lifted_goals[0.0] == 0 and lifted_goals[1.0] == len(rows) and 0 < lifted_goals[0.5] < len(rows)
+    with pytest.raises(ValueError, match="decoded_goals holds 2 entity clouds"):
+        TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table),
+                          decoded_goals=DecodedGoals(lifted[:2], 1.0))
 
 
 def test_the_heads_split_holds_out_a_trajectory_of_every_skill(training_data):

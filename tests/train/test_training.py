@@ -12,7 +12,7 @@ from pasta.models import VARIANTS, variant_spec
 from pasta.models.vae import PointCloudVAE
 from pasta.train.bundle import untrained
 from pasta.train.datasets import vae_clouds
-from pasta.train.heads_loop import HeadsSettings, HeldOut, skill_loss, train_heads
+from pasta.train.heads_loop import HeadsSettings, HeldOut, decode_entities, skill_loss, train_heads
 from pasta.train.policy_loop import PolicySettings, policy_loss
 from pasta.train.vae_loop import VAESettings, train_vae
 from tests.models.synthetic import tiny_model_config
@@ -186,3 +186,17 @@ def test_vae_and_heads_train_on_cuda_like_on_the_cpu(tmp_path, cfg, training_dat
     assert all(not p.is_cuda for p in heads.bundle.models["policy"].parameters())  # handed back on the CPU
     for key in ("feasibility_auc_random", "cost_r2", "policy_mse"):
         assert np.isfinite(heads.metrics[key]), key
+
+
+def test_decoded_entities_are_the_vaes_decoding_of_each_latent_in_any_batch_size():
+    torch.manual_seed(0)
+    vae = PointCloudVAE(dataclasses.replace(tiny_model_config().vae, height_input=True)).eval()
+    vae.scale.fill_(0.05)
+    latent_dim = vae.config.latent_dim
+    latents = torch.randn(5, latent_dim + 3)
+    decoded = decode_entities(vae, latents, latent_dim, batch_size=2)
+    with torch.no_grad():
+        expected = vae.decode(latents[:, :latent_dim], latents[:, latent_dim:]).numpy()
+    assert decoded.shape == (5, vae.config.n_decoded_points, 3)
+    np.testing.assert_allclose(decoded, expected, atol=1e-6)
+    np.testing.assert_allclose(decoded.mean(axis=1), latents[:, latent_dim:].numpy(), atol=0.2)
