@@ -542,7 +542,8 @@ def test_gap_features_and_the_hindsight_ratio_default_to_the_appendixs_and_are_v
     assert changed.policy.gap_features is True and changed.train.policy_hindsight_ratio == 0.25
     with pytest.raises(ConfigError, match=r"policy_hindsight_ratio"):
         load("CutRearrange", "small", ["train.policy_hindsight_ratio=1.5"])
-    assert cfg.train.policy_decoded_goal_share == 0.0
-    assert load("CutRearrange", "small", ["train.policy_decoded_goal_share=0.5"]).train.policy_decoded_goal_share == 0.5
+    assert cfg.train.policy_decoded_goal_share == 0.5
+    assert load("CutRearrange", "paper").train.policy_decoded_goal_share == 0.0
+    assert load("CutRearrange", "small", ["train.policy_decoded_goal_share=1"]).train.policy_decoded_goal_share == 1.0
     with pytest.raises(ConfigError, match=r"policy_decoded_goal_share"):
         load("CutRearrange", "small", ["train.policy_decoded_goal_share=-0.1"])
