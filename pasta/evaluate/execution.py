@@ -39,6 +39,7 @@ from pasta.sim.engine import SimulationError
 from pasta.sim.envs.base import DoughEnv, Observation
 from pasta.sim.tool_points import world_sdf
 from pasta.train.bundle import TrainedModels
+from pasta.train.entities import decode_latents
 
 if TYPE_CHECKING:
     from pasta.plan.result import Plan
@@ -106,10 +107,7 @@ def decode_set(bundle: TrainedModels, latents: torch.Tensor) -> np.ndarray:
     u = latents.detach().float().cpu()
     if u.ndim != 2 or u.shape[1] != latent_dim + 3:
         raise ValueError(f"latents must have shape (K, {latent_dim + 3}), got {tuple(u.shape)}")
-    device = next(bundle.vae.parameters()).device
-    with torch.no_grad():
-        points = bundle.vae.decode(u[:, :latent_dim].to(device), u[:, latent_dim:].to(device))
-    return points.float().cpu().numpy()
+    return decode_latents(bundle.vae, u)
 
 
 def park_tool(env: DoughEnv, tool_name: str) -> Observation:

@@ -18,7 +18,7 @@ from pasta.geometry.distances import chamfer_distance
 from pasta.geometry.entities import resample
 from pasta.train.demos import Demonstrations
 
-__all__ = ["CHAMFER_POINTS", "EntityTable", "PairChamfer", "build_entity_table", "state_cloud"]
+__all__ = ["CHAMFER_POINTS", "EntityTable", "PairChamfer", "build_entity_table", "decode_latents", "state_cloud"]
 
 CHAMFER_POINTS = 200
 
@@ -107,3 +107,12 @@ class PairChamfer:
                 values = chamfer_distance(self._sub[index[:, 0]], self._sub[index[:, 1]])
             self._known.update(zip(missing, values.tolist(), strict=True))
         return np.asarray([self._known[k] for k in keys], dtype=np.float64)
+
+
+def decode_latents(vae: torch.nn.Module, latents: torch.Tensor, batch_size: int = 256) -> np.ndarray:
+    """Float32 world clouds ``(N, M, 3)`` of entity latents ``(N, D_z + 3)`` (``PointCloudVAE.decode_entities``
+    in batches on the VAE's device, without gradients)."""
+    device = next(vae.parameters()).device
+    with torch.no_grad():
+        parts = [vae.decode_entities(u.to(device).float()).float().cpu() for u in latents.split(batch_size)]
+    return torch.cat(parts).numpy()

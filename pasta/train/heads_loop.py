@@ -50,8 +50,8 @@ from pasta.train.policy_loop import (
 )
 from pasta.train.progress import EpochCallback, epoch_generators
 
-__all__ = ["HeadsResult", "HeadsSettings", "HeldOut", "decode_entities", "encode_entities", "evaluate_abstraction",
-           "skill_loss", "train_heads"]
+__all__ = ["HeadsResult", "HeadsSettings", "HeldOut", "encode_entities", "evaluate_abstraction", "skill_loss",
+           "train_heads"]
 
 
 @dataclass(frozen=True)
@@ -96,16 +96,6 @@ def encode_entities(vae: PointCloudVAE, clouds: torch.Tensor, device: torch.devi
     with torch.no_grad():
         parts = [vae.encode_entities(clouds[i : i + batch_size].to(device)) for i in range(0, len(clouds), batch_size)]
     return torch.cat(parts)
-
-
-def decode_entities(vae: PointCloudVAE, latents: torch.Tensor, latent_dim: int, batch_size: int = 256) -> np.ndarray:
-    """Decoded world clouds ``(N, M, 3)`` float32 of the entity latents ``(N, D_z + 3)`` (``[z, t]``)."""
-    vae = vae.eval()
-    device = next(vae.parameters()).device
-    with torch.no_grad():
-        parts = [vae.decode(u[:, :latent_dim].to(device).float(), u[:, latent_dim:].to(device).float()).float().cpu()
-                 for u in latents.split(batch_size)]
-    return torch.cat(parts).numpy()
 
 
 @dataclass(frozen=True, eq=False)

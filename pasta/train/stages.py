@@ -26,15 +26,8 @@ from pasta.plan.reach import skill_reach, skill_vertical_range
 from pasta.train.bundle import DEFAULT_FILTER_EPSILON
 from pasta.train.datasets import DecodedGoals, TransitionSampler, split_trajectories, vae_clouds
 from pasta.train.demos import Demonstrations, load_demonstrations
-from pasta.train.entities import EntityTable, PairChamfer, build_entity_table
-from pasta.train.heads_loop import (
-    HeadsResult,
-    HeadsSettings,
-    HeldOut,
-    decode_entities,
-    encode_entities,
-    train_heads,
-)
+from pasta.train.entities import EntityTable, PairChamfer, build_entity_table, decode_latents
+from pasta.train.heads_loop import HeadsResult, HeadsSettings, HeldOut, encode_entities, train_heads
 from pasta.train.progress import EpochCallback
 from pasta.train.vae_loop import VAEResult, VAESettings, load_vae, save_vae, train_vae
 
@@ -111,8 +104,7 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     keep_acted = cfg.train.filter_keeps_acted
     decoded = None
     if cfg.train.policy_decoded_goal_share > 0 and not spec.policy_on_latents:
-        decoded = DecodedGoals(decode_entities(vae, latents, cfg.train.latent_dim),
-                               cfg.train.policy_decoded_goal_share)
+        decoded = DecodedGoals(decode_latents(vae.eval(), latents), cfg.train.policy_decoded_goal_share)
     train_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_train, epsilon, chamfer, points,
                                       chunk, hindsight, keep_acted, decoded)
     test_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_heldout, epsilon, chamfer, points,

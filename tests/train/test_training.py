@@ -12,7 +12,8 @@ from pasta.models import VARIANTS, variant_spec
 from pasta.models.vae import PointCloudVAE
 from pasta.train.bundle import untrained
 from pasta.train.datasets import vae_clouds
-from pasta.train.heads_loop import HeadsSettings, HeldOut, decode_entities, skill_loss, train_heads
+from pasta.train.entities import decode_latents
+from pasta.train.heads_loop import HeadsSettings, HeldOut, skill_loss, train_heads
 from pasta.train.policy_loop import PolicySettings, policy_loss
 from pasta.train.vae_loop import VAESettings, train_vae
 from tests.models.synthetic import tiny_model_config
@@ -194,7 +195,7 @@ def test_decoded_entities_are_the_vaes_decoding_of_each_latent_in_any_batch_size
     vae.scale.fill_(0.05)
     latent_dim = vae.config.latent_dim
     latents = torch.randn(5, latent_dim + 3)
-    decoded = decode_entities(vae, latents, latent_dim, batch_size=2)
+    decoded = decode_latents(vae, latents, batch_size=2)
     with torch.no_grad():
         expected = vae.decode(latents[:, :latent_dim], latents[:, latent_dim:]).numpy()
     assert decoded.shape == (5, vae.config.n_decoded_points, 3)
