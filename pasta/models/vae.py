@@ -127,12 +127,6 @@ class PointCloudVAE(nn.Module):
         """``z (B, D_z)``, ``t (B, 3)`` -> world points ``(B, M, 3)`` (``shape * scale + t``)."""
         return self.decode_shape(z, t) * self.scale + t.unsqueeze(1)
 
-    def decode_entities(self, latents: torch.Tensor) -> torch.Tensor:
-        """Entity latents ``u = [z, t]`` ``(B, D_z + 3)`` -> world points ``(B, M, 3)`` (the inverse direction of
-        ``encode_entities``)."""
-        d = self.config.latent_dim
-        return self.decode(latents[:, :d], latents[:, d:])
-
     def elbo_loss(
         self, points: torch.Tensor, generator: torch.Generator | None
     ) -> tuple[torch.Tensor, dict[str, float]]:

@@ -110,9 +110,10 @@ class PairChamfer:
 
 
 def decode_latents(vae: torch.nn.Module, latents: torch.Tensor, batch_size: int = 256) -> np.ndarray:
-    """Float32 world clouds ``(N, M, 3)`` of entity latents ``(N, D_z + 3)`` (``PointCloudVAE.decode_entities``
-    in batches on the VAE's device, without gradients)."""
-    device = next(vae.parameters()).device
+    """Float32 world clouds ``(N, M, 3)`` of entity latents ``u = [z, t]`` ``(N, D_z + 3)``: ``vae.decode(z, t)`` in
+    batches on the VAE's device, without gradients."""
+    device, d = next(vae.parameters()).device, vae.config.latent_dim
     with torch.no_grad():
-        parts = [vae.decode_entities(u.to(device).float()).float().cpu() for u in latents.split(batch_size)]
+        parts = [vae.decode(u[:, :d].to(device).float(), u[:, d:].to(device).float()).float().cpu()
+                 for u in latents.split(batch_size)]
     return torch.cat(parts).numpy()
