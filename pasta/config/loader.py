@@ -7,7 +7,8 @@
   that multiply the task's counts, and any override tree (``sim:``, ``train:``, ...) applied to
   every task. The factors are applied to the task's values first; the profile's explicit values
   are merged afterwards, so they win over scaled ones. Scaled counts are rounded half up and
-  never drop below 1.
+  never drop below 1. A ``tasks:`` block maps a task name to an override tree for that task alone
+  (``tasks: {CRS-Twice: {plan: {receding_horizon: 6}}}``), merged after the profile's own trees.
 * ``overrides`` are dotted keys, either ``{"sim.n_grid": 40}`` or ``["sim.n_grid=40"]`` (values
   of the string form are parsed with ``yaml.safe_load``). Entries of ``tools`` and ``skills`` are
   selected by name or index (``tools.knife.friction=0.5``). ``scale.<factor>=<value>`` replaces
@@ -82,7 +83,7 @@ def load(
     """Resolve one task at one profile, with optional dotted-key overrides."""
     root = conf_dir()
     tree = _task_tree(task, root, ())
-    scale, profile_tree = _profile_tree(profile, root)
+    scale, profile_tree, per_task = _profile_tree(profile, root)
     items = _parse_overrides(overrides)
 
     rest: list[tuple[str, Any]] = []
@@ -94,6 +95,7 @@ def load(
 
     _apply_scale(tree, scale)
     tree = _merge(tree, profile_tree)
+    tree = _merge(tree, per_task.get(task, {}))
     for key, value in rest:
         _override(tree, key, value)
     tree["task"] = task
@@ -165,7 +167,7 @@ def _task_tree(task: str, root: Path, chain: tuple[str, ...]) -> dict[str, Any]:
     return tree
 
 
-def _profile_tree(profile: str, root: Path) -> tuple[dict[str, float], dict[str, Any]]:
+def _profile_tree(profile: str, root: Path) -> tuple[dict[str, float], dict[str, Any], dict[str, dict[str, Any]]]:
     if profile not in PROFILE_NAMES:
         raise ConfigError(
             f"unknown profile {profile!r}{_did_you_mean(profile, PROFILE_NAMES)}; "
@@ -181,8 +183,18 @@ def _profile_tree(profile: str, root: Path) -> tuple[dict[str, float], dict[str,
         raise ConfigError(f"scale{where} must be a mapping of factors ({', '.join(SCALE_KEYS)})")
     for key, value in scale.items():
         _check_scale(key, value, where)
-    _check_keys(tree, TaskConfig, where, "", exclude=_RESERVED, also=("scale",))
-    return dict(scale), tree
+    per_task = tree.pop("tasks", None) or {}
+    if not isinstance(per_task, Mapping):
+        raise ConfigError(f"tasks{where} must map task names to override trees")
+    for name, overrides in per_task.items():
+        if name not in TASK_NAMES:
+            raise ConfigError(f"tasks.{name}{where} is not a task{_did_you_mean(str(name), TASK_NAMES)}; "
+                              f"tasks: {', '.join(TASK_NAMES)}")
+        if not isinstance(overrides, Mapping):
+            raise ConfigError(f"tasks.{name}{where} must be a mapping of overrides")
+        _check_keys(overrides, TaskConfig, where, f"tasks.{name}", exclude=_RESERVED)
+    _check_keys(tree, TaskConfig, where, "", exclude=_RESERVED, also=("scale", "tasks"))
+    return dict(scale), tree, {name: dict(overrides) for name, overrides in per_task.items()}
 
 
 def _check_scale(key: Any, value: Any, where: str) -> None:

@@ -318,6 +318,9 @@ class PlanConfig(Frozen):
     iterations: int = Field(ge=1)
     samples: int = Field(ge=1)
     receding_horizon: int | None = Field(default=None, ge=1)
+    # Receding-horizon planning only: one sample of each window after the first continues the previous window's
+    # best plan (pasta.plan.receding). The official code starts every window afresh.
+    receding_warm_start: bool = False
     # Planning horizon when it differs from the task's (the CRS horizon sweep, appendix Table 8);
     # the evaluation problems keep the task's own horizon.
     horizon: int | None = Field(default=None, ge=1, le=8)
@@ -339,6 +342,9 @@ class PlanConfig(Frozen):
     # "absolute": |d_y| limited by the largest |d_y| of the training transitions; "signed": d_y kept between their
     # lowest and highest d_y (a spread must lower its piece as its demonstrations did: pasta.plan.reach).
     reach_vertical: Literal[REACH_VERTICAL] = "absolute"
+    # The share of planner samples whose new vectors start on paths from the observed entities to the goal's
+    # (pasta.plan.goal_init); the appendix draws every sample from the prior (0).
+    goal_init_share: float = Field(default=0.0, ge=0, le=1)
 
 
 class PolicyNetConfig(Frozen):

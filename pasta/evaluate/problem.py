@@ -101,7 +101,7 @@ def make_plan(cfg: TaskConfig, bundle: TrainedModels, problem: EvaluationProblem
     device = training_device()
     if cfg.plan.receding_horizon is not None:
         return plan_receding_horizon(bundle, obs, goal, problem.skill_sequence, cfg.plan.receding_horizon, settings,
-                                     device)
+                                     device, warm_start=cfg.plan.receding_warm_start)
     return plan(bundle, obs, goal, cfg.plan.horizon or cfg.horizon, settings, device)
 
 

@@ -49,16 +49,24 @@ class Structures:
 
 
 def sample_structures(sequence: tuple[SkillSpec, ...], k_obs: int, n_samples: int,
-                      generator: torch.Generator) -> Structures:
-    """Draw ``n_samples`` independent attention structures for ``sequence`` from ``k_obs`` entities."""
+                      generator: torch.Generator, first_row: tuple[tuple[int, ...], ...] = ()) -> Structures:
+    """Draw ``n_samples`` independent attention structures for ``sequence`` from ``k_obs`` entities.
+
+    ``first_row`` fixes sample 0's attended positions for the first ``len(first_row)`` steps (a warm start);
+    the random draws are the same with or without it, so every other sample is unchanged.
+    """
     if n_samples < 1:
         raise ValueError(f"n_samples must be >= 1, got {n_samples}")
     sizes = set_sizes(sequence, k_obs)
+    if len(first_row) > len(sequence):
+        raise ValueError(f"first_row has {len(first_row)} steps, the sequence {len(sequence)}")
     current = torch.arange(k_obs).expand(n_samples, k_obs)
     sets, attention, attended, created = [current], [], [], []
     next_index = k_obs
-    for skill, size in zip(sequence, sizes[:-1], strict=True):
+    for h, (skill, size) in enumerate(zip(sequence, sizes[:-1], strict=True)):
         order = torch.rand((n_samples, size), generator=generator).argsort(dim=1)
+        if h < len(first_row):
+            order[0] = _fixed_order(first_row[h], skill.n_in, size, h)
         chosen = order[:, : skill.n_in]
         kept = order[:, skill.n_in :].sort(dim=1).values
         new = torch.arange(next_index, next_index + skill.n_out)
@@ -70,3 +78,12 @@ def sample_structures(sequence: tuple[SkillSpec, ...], k_obs: int, n_samples: in
         sets.append(current)
     return Structures(sequence, tuple(attention), tuple(attended), tuple(created), tuple(sets), k_obs,
                       next_index - k_obs)
+
+
+def _fixed_order(positions: tuple[int, ...], n_in: int, size: int, step: int) -> torch.Tensor:
+    """The ordering whose first ``n_in`` entries are ``positions`` and the rest the other positions, ascending."""
+    if len(positions) != n_in or len(set(positions)) != n_in or not all(0 <= p < size for p in positions):
+        raise ValueError(f"step {step}: attended positions {positions} must be {n_in} distinct values in "
+                         f"[0, {size})")
+    rest = [p for p in range(size) if p not in positions]
+    return torch.tensor([*positions, *rest])

@@ -24,11 +24,12 @@ import torch
 from pasta.plan.adam import RowAdam
 from pasta.plan.attention import Structures, sample_structures
 from pasta.plan.functions import PlanningFunctions
+from pasta.plan.goal_init import goal_directed_latents
 from pasta.plan.matching import best_matching, matched_pair_cost
 from pasta.plan.sequences import SkillSpec
 from pasta.plan.settings import PlanSettings
 
-__all__ = ["Candidate", "optimise"]
+__all__ = ["Candidate", "WarmStart", "optimise"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,6 +51,19 @@ class Candidate:
     pool: torch.Tensor
     score: float
     sample_iterations: int
+
+
+@dataclass(frozen=True, eq=False)
+class WarmStart:
+    """A partial plan that sample 0 of the first sequence starts from (the previous receding window's plan).
+
+    Attributes:
+        attention: per leading step, the attended positions in ``U^{h-1}``.
+        variables: ``(V_w, D_z + 3)`` the new vectors of those steps, in step order.
+    """
+
+    attention: tuple[tuple[int, ...], ...]
+    variables: torch.Tensor
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,7 +158,7 @@ def _slices(groups: list[_Group], chunks: list[tuple[int, int]]) -> list[list[tu
 
 def optimise(functions: PlanningFunctions, start: torch.Tensor, goal: torch.Tensor,
              sequences: list[tuple[SkillSpec, ...]], settings: PlanSettings, generator: torch.Generator,
-             device: torch.device) -> Candidate:
+             device: torch.device, warm_start: WarmStart | None = None) -> Candidate:
     """Optimise ``settings.samples`` samples of each sequence from ``start`` towards ``goal``; return the best.
 
     Args:
@@ -155,16 +169,28 @@ def optimise(functions: PlanningFunctions, start: torch.Tensor, goal: torch.Tens
         settings: optimiser settings.
         generator: CPU generator for the structures and initial latents (so results do not depend on device).
         device: where to compute.
+        warm_start: sample 0 of the first sequence takes these leading steps (attention and initial vectors);
+            its remaining vectors and every other sample are drawn as without it.
     """
     k_obs = start.shape[0]
-    structures = tuple(sample_structures(seq, k_obs, settings.samples, generator) for seq in sequences)
+    first_row = warm_start.attention if warm_start is not None else ()
+    structures = tuple(sample_structures(seq, k_obs, settings.samples, generator, first_row if i == 0 else ())
+                       for i, seq in enumerate(sequences))
     final_sizes = {st.sets[-1].shape[1] for st in structures}
     if len(final_sizes) != 1:
         raise ValueError(f"skill sequences end with different entity counts {sorted(final_sizes)}: "
                          f"{[[s.name for s in seq] for seq in sequences]}")
     n_vars = max(st.n_variables for st in structures)
     prior = functions.prior
-    x = torch.cat([prior.sample((st.n_samples, n_vars), generator) for st in structures]).to(device)
+    draws = [prior.sample((st.n_samples, n_vars), generator) for st in structures]
+    if settings.goal_init_share > 0:
+        draws = [goal_directed_latents(st, start.cpu(), goal.cpu(), drawn,
+                                       (torch.rand(st.n_samples, generator=generator) < settings.goal_init_share
+                                        ).nonzero().squeeze(1), generator)
+                 for st, drawn in zip(structures, draws, strict=True)]
+    x = torch.cat(draws).to(device)
+    if warm_start is not None:
+        x[0, : warm_start.variables.shape[0]] = warm_start.variables.to(device=device, dtype=x.dtype)
     t_low = torch.tensor(prior.t_low, dtype=x.dtype, device=device)
     t_high = torch.tensor(prior.t_high, dtype=x.dtype, device=device)
     d = prior.latent_dim

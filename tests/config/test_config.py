@@ -512,6 +512,25 @@ def test_extra_key_in_profile_yaml_is_refused(conf_copy):
         load("CRS", "small")
 
 
+def test_a_profiles_tasks_block_sets_one_task_alone(conf_copy):
+    _edit(conf_copy / "profiles" / "paper.yaml",
+          lambda d: d.update(tasks={"CRS-Twice": {"plan": {"receding_horizon": 5, "samples": 7}}}))
+    twice, crs = load("CRS-Twice", "paper"), load("CRS", "paper")
+    assert (twice.plan.receding_horizon, twice.plan.samples) == (5, 7)
+    assert crs.plan.receding_horizon is None and crs.plan.samples != 7
+    assert load("CRS-Twice", "paper", ["plan.receding_horizon=2"]).plan.receding_horizon == 2  # overrides win
+
+
+def test_a_bad_tasks_block_names_the_task_or_key(conf_copy):
+    path = conf_copy / "profiles" / "small.yaml"
+    _edit(path, lambda d: d.update(tasks={"CRS-Twise": {"plan": {"samples": 3}}}))
+    with pytest.raises(ConfigError, match=r"tasks\.CRS-Twise.*small\.yaml.*CRS-Twice"):
+        load("CRS", "small")
+    _edit(path, lambda d: d.update(tasks={"CRS-Twice": {"plan": {"sample": 3}}}))
+    with pytest.raises(ConfigError, match=r"tasks\.CRS-Twice\.plan\.sample"):
+        load("CRS", "small")
+
+
 def test_conf_dir_override(conf_copy):
     _edit(conf_copy / "tasks" / "LiftSpread.yaml", lambda d: d.update(horizon=4))
     assert load("LiftSpread", "paper").horizon == 4

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import itertools
 
+import pytest
 import torch
 
 from pasta.plan import SkillSpec, sample_structures, set_sizes
@@ -46,3 +47,21 @@ def test_sampling_is_seeded():
     assert all(torch.equal(x, y) for x, y in zip(a.sets, b.sets, strict=True))
     other = sample_structures((CUT, MOVE, MOVE), 1, 50, torch.Generator().manual_seed(4))
     assert not all(torch.equal(x, y) for x, y in zip(a.attention, other.attention, strict=True))
+
+
+def test_a_fixed_first_row_changes_only_sample_zero():
+    sequence = (MERGE, CUT, MOVE)
+    free = sample_structures(sequence, 3, 40, torch.Generator().manual_seed(2))
+    fixed = sample_structures(sequence, 3, 40, torch.Generator().manual_seed(2), first_row=((2, 0), (1,)))
+    assert fixed.structure(0)[:2] == ((2, 0), (1,))
+    for h in range(len(sequence)):
+        assert torch.equal(fixed.attention[h][1:], free.attention[h][1:])
+    assert [int(i) for i in fixed.sets[1][0]] == [3, 1]  # the merged vector, then the kept entity 1
+    assert [int(i) for i in fixed.attended[1][0]] == [1]
+
+
+def test_a_bad_first_row_names_the_step_and_positions():
+    with pytest.raises(ValueError, match=r"step 1: attended positions \(5,\)"):
+        sample_structures((CUT, MOVE), 1, 4, torch.Generator().manual_seed(0), first_row=((0,), (5,)))
+    with pytest.raises(ValueError, match="first_row has 3 steps, the sequence 2"):
+        sample_structures((CUT, MOVE), 1, 4, torch.Generator().manual_seed(0), first_row=((0,), (0,), (0,)))
