@@ -521,6 +521,11 @@ def test_a_profiles_tasks_block_sets_one_task_alone(conf_copy):
     assert load("CRS-Twice", "paper", ["plan.receding_horizon=2"]).plan.receding_horizon == 2  # overrides win
 
 
+def test_small_plans_crs_twice_with_whole_sequence_windows_and_paper_with_the_appendixs():
+    assert [load("CRS-Twice", profile).plan.receding_horizon for profile in ("smoke", "small", "paper")] == [3, 6, 3]
+    assert {load(task, "small").plan.receding_horizon for task in TASK_NAMES if task != "CRS-Twice"} == {None}
+
+
 def test_a_bad_tasks_block_names_the_task_or_key(conf_copy):
     path = conf_copy / "profiles" / "small.yaml"
     _edit(path, lambda d: d.update(tasks={"CRS-Twise": {"plan": {"samples": 3}}}))
