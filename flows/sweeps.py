@@ -3,7 +3,7 @@
     pasta sweeps --profile small [--only samples horizon distractors]
 
 * ``samples``: CutRearrange planned with a fraction of the profile's samples (Fig. 2a time, Fig. 2b
-  performance), 5 seeds each as the appendix.
+  performance), 5 seeds each as the appendix (`--seeds` takes fewer).
 * ``horizon``: CRS planned with horizons 3 to 6 (Table 8).
 * ``distractors``: CRS with 2 extra dough pieces on the board (§4.5).
 
@@ -72,12 +72,14 @@ def sweeps(profile: str = "smoke", only: Sequence[str] = SWEEPS, variant: str = 
 
 
 def run(profile: str = "smoke", only: Sequence[str] | None = None, executor: str = "policy",
-        overrides: Sequence[str] = (), workers: int = 2, dask_address: str | None = None) -> dict:
-    """The CLI's entry point: check the sweep names and configs, then run :func:`sweeps`."""
+        overrides: Sequence[str] = (), workers: int = 2, dask_address: str | None = None,
+        seeds: Sequence[int] | None = None) -> dict:
+    """The CLI's entry point: check the sweep names and configs, then run :func:`sweeps` (``seeds`` None:
+    :data:`SWEEP_SEEDS`)."""
     check_workers(workers)
     chosen = tuple(SWEEPS if only is None else only)
     for sweep in chosen:
         for task_name, _, point_overrides in sweep_points(sweep, profile, overrides):
             load(task_name, profile, list(point_overrides))
-    return sweeps(profile, chosen, executor=executor, overrides=tuple(overrides), workers=workers,
-                  dask_address=dask_address)
+    return sweeps(profile, chosen, seeds=tuple(SWEEP_SEEDS if seeds is None else seeds), executor=executor,
+                  overrides=tuple(overrides), workers=workers, dask_address=dask_address)

@@ -218,7 +218,7 @@ def _cmd_sweeps(args: argparse.Namespace) -> int:
     with _prefect(args):
         sweeps = importlib.import_module("flows.sweeps")
         results = sweeps.run(profile=args.profile, only=args.only, executor=args.executor, overrides=args.set,
-                             workers=args.workers, dask_address=args.dask_address)
+                             workers=args.workers, dask_address=args.dask_address, seeds=args.seeds)
     print(json.dumps(results, indent=1, default=str))
     return 0
 
@@ -337,6 +337,8 @@ def build_parser() -> argparse.ArgumentParser:
     sweeps.add_argument("--profile", default="smoke", choices=PROFILE_NAMES, help="scale profile")
     sweeps.add_argument("--only", nargs="+", default=None, choices=("samples", "horizon", "distractors"),
                         help="which sweeps (default: all)")
+    sweeps.add_argument("--seeds", type=seed_int, nargs="+", default=None,
+                        help="evaluation seeds of every sweep point (default: 0 1 2 3 4, as the appendix)")
     sweeps.add_argument("--executor", default="policy", choices=("policy", "scripted"),
                         help="run the planned skills with the learned policies or the scripted skills")
     _add_worker_options(sweeps)

@@ -66,6 +66,7 @@ BAD_VALUES = [
     (["ablations", "--set", "sim.n_gird=40"], ["sim.n_gird", "n_grid"]),
     (["sweeps", "--only", "time"], ["'time'", "samples", "horizon", "distractors"]),
     (["sweeps", "--workers", "0"], ["'0'", "at least 1"]),
+    (["sweeps", "--seeds", "-1"], ["'-1'"]),
     (["sweeps", "--set", "sim.n_gird=40"], ["sim.n_gird", "n_grid"]),
 ]
 

@@ -65,6 +65,7 @@ def test_cli_ablations_and_sweeps_arguments():
     args = build_parser().parse_args(["ablations", "--variants", "pasta", "flat3d", "--method", "scripted"])
     assert (args.task, args.variants, args.method) == ("CutRearrange", ["pasta", "flat3d"], "scripted")
     args = build_parser().parse_args(["sweeps", "--profile", "small", "--only", "horizon"])
-    assert (args.profile, args.only) == ("small", ["horizon"])
+    assert (args.profile, args.only, args.seeds) == ("small", ["horizon"], None)
+    assert build_parser().parse_args(["sweeps", "--seeds", "0", "2"]).seeds == [0, 2]
     with pytest.raises(SystemExit):
         build_parser().parse_args(["sweeps", "--only", "tides"])
