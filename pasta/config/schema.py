@@ -345,6 +345,11 @@ class PlanConfig(Frozen):
     # The share of planner samples whose new vectors start on paths from the observed entities to the goal's
     # (pasta.plan.goal_init); the appendix draws every sample from the prior (0).
     goal_init_share: float = Field(default=0.0, ge=0, le=1)
+    # True: each skill's input entities are kept within the shapes (VAE z) its training transitions started
+    # from, the factor falling to exp(-1) at input_shape_softness beyond them (pasta.plan.input_shapes); the
+    # appendix has no such guard (False).
+    input_shape_guard: bool = False
+    input_shape_softness: float = Field(default=0.05, gt=0)
 
 
 class PolicyNetConfig(Frozen):

@@ -12,6 +12,7 @@ from pasta.config import load
 from pasta.models.variants import variant_spec
 from pasta.plan.decoded_cost import decoded_chamfer_cost
 from pasta.plan.functions import PlanningFunctions
+from pasta.plan.input_shapes import input_shape_penalty, sum_penalties
 from pasta.plan.reach import reach_penalty
 from pasta.plan.sequences import SkillSpec
 from pasta.plan.settings import COSTS, GUARDS, REACH_VERTICAL, PlanSettings
@@ -42,7 +43,8 @@ def bundle_skills(bundle: TrainedModels) -> tuple[SkillSpec, ...]:
 
 def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None = None, *, cost: str = "learned",
                      cost_points: int = 64, guard: str = "none", reach_softness: float = 0.02,
-                     planar_skills: Collection[str] = (), reach_vertical: str = "absolute") -> PlanningFunctions:
+                     planar_skills: Collection[str] = (), reach_vertical: str = "absolute",
+                     input_shape_guard: bool = False, input_shape_softness: float = 0.05) -> PlanningFunctions:
     """Feasibility and pair cost from the bundle's networks (on whatever device they are).
 
     Args:
@@ -57,6 +59,8 @@ def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None =
             along x and z); the others are limited along each axis.
         reach_vertical: ``"absolute"`` limits ``|d_y|`` by the reach; ``"signed"`` keeps ``d_y`` within the
             bundle's ``vertical_range``.
+        input_shape_guard: also penalise inputs unlike the skill's training inputs
+            (:func:`pasta.plan.input_shapes.input_shape_penalty` with ``input_shape_softness``).
     """
     specs = tuple(skills) if skills is not None else bundle_skills(bundle)
     names = tuple(dict.fromkeys(s.name for s in specs))
@@ -88,14 +92,24 @@ def bundle_functions(bundle: TrainedModels, skills: Sequence[SkillSpec] | None =
             bundle.vertical_range[bundle.skill_index(spec.name)] for spec in specs]  # type: ignore[index]
         penalty = reach_penalty(reach, bundle.prior.latent_dim, reach_softness,
                                 [spec.name in planar_skills for spec in specs], vertical)
-    return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost, penalty)
+    shape_penalty = None
+    if input_shape_guard:
+        if bundle.input_shapes is None:
+            raise ValueError(f"plan.input_shape_guard needs the skills' training input shapes, which this "
+                             f"{bundle.task} bundle was trained without; train it again (`pasta train` resumes and "
+                             "keeps them) or plan with plan.input_shape_guard=false")
+        shapes = [torch.tensor(bundle.input_shapes[bundle.skill_index(spec.name)], dtype=torch.float32)
+                  .reshape(-1, bundle.prior.latent_dim) for spec in specs]
+        shape_penalty = input_shape_penalty(shapes, bundle.prior.latent_dim, input_shape_softness)
+    return PlanningFunctions(specs, bundle.prior, feasibility, pair_cost, sum_penalties([penalty, shape_penalty]))
 
 
 def settings_functions(bundle: TrainedModels, settings: PlanSettings) -> PlanningFunctions:
     """:func:`bundle_functions` with the cost and guard of ``settings``."""
     return bundle_functions(bundle, cost=settings.cost, cost_points=settings.cost_points, guard=settings.guard,
                             reach_softness=settings.reach_softness, planar_skills=settings.planar_skills,
-                            reach_vertical=settings.reach_vertical)
+                            reach_vertical=settings.reach_vertical, input_shape_guard=settings.input_shape_guard,
+                            input_shape_softness=settings.input_shape_softness)
 
 
 @contextmanager

@@ -43,6 +43,8 @@ class PlanSettings:
         reach_vertical: ``"absolute"`` or ``"signed"`` (:func:`pasta.plan.reach.reach_penalty`).
         goal_init_share: the share of samples whose new vectors start on paths from the observed entities to
             the goal's (:mod:`pasta.plan.goal_init`); the rest are drawn from the prior (the appendix: 0).
+        input_shape_guard: whether each skill's inputs are kept within its training inputs' shapes
+            (:mod:`pasta.plan.input_shapes`), with ``input_shape_softness``.
     """
 
     lr: float
@@ -61,6 +63,8 @@ class PlanSettings:
     planar_skills: frozenset[str] = frozenset()
     reach_vertical: str = "absolute"
     goal_init_share: float = 0.0
+    input_shape_guard: bool = False
+    input_shape_softness: float = 0.05
 
     def __post_init__(self) -> None:
         if self.lr <= 0:
@@ -87,6 +91,8 @@ class PlanSettings:
             raise ValueError(f"guard must be one of {list(GUARDS)}, got {self.guard!r}")
         if self.reach_softness <= 0:
             raise ValueError(f"reach_softness must be > 0, got {self.reach_softness}")
+        if self.input_shape_softness <= 0:
+            raise ValueError(f"input_shape_softness must be > 0, got {self.input_shape_softness}")
         if not 0 <= self.goal_init_share <= 1:
             raise ValueError(f"goal_init_share must be in [0, 1], got {self.goal_init_share}")
         if self.reach_vertical not in REACH_VERTICAL:
@@ -103,7 +109,8 @@ class PlanSettings:
                    alpha=alpha, seed=seed, halving=halving,
                    cost=cfg.plan.cost, cost_points=cfg.plan.cost_points, guard=cfg.plan.guard,
                    reach_softness=cfg.plan.reach_softness, reach_vertical=cfg.plan.reach_vertical,
-                   goal_init_share=cfg.plan.goal_init_share,
+                   goal_init_share=cfg.plan.goal_init_share, input_shape_guard=cfg.plan.input_shape_guard,
+                   input_shape_softness=cfg.plan.input_shape_softness,
                    planar_skills=planar_skills(cfg) if cfg.plan.reach_frame == "tool" else frozenset())
 
     def halving_iterations(self) -> frozenset[int]:

@@ -76,6 +76,8 @@ class TrainedModels:
         vertical_range: per skill, the lowest and highest signed vertical displacement of an output entity's centre
             over the same transitions (:func:`pasta.plan.reach.skill_vertical_range`); ``None`` for a bundle
             trained before it was measured.
+        input_shapes: per skill, the shape latents ``z`` (``D_z`` floats each) of every input entity of its training
+            transitions (:mod:`pasta.plan.input_shapes`); ``None`` for a bundle trained before they were kept.
     """
 
     task: str
@@ -88,6 +90,7 @@ class TrainedModels:
     models: dict[str, nn.Module]
     reach: tuple[tuple[float, float, float], ...] | None = None
     vertical_range: tuple[tuple[float, float], ...] | None = None
+    input_shapes: tuple[tuple[tuple[float, ...], ...], ...] | None = None
 
     def __post_init__(self) -> None:
         variant_spec(self.variant)
@@ -98,6 +101,11 @@ class TrainedModels:
         if self.vertical_range is not None and (len(self.vertical_range) != len(self.skill_names)
                                                 or any(len(r) != 2 for r in self.vertical_range)):
             raise ValueError(f"vertical_range must hold a (lowest, highest) pair per skill, got {self.vertical_range}")
+        if self.input_shapes is not None and (
+                len(self.input_shapes) != len(self.skill_names)
+                or any(len(z) != self.prior.latent_dim for skill in self.input_shapes for z in skill)):
+            raise ValueError(f"input_shapes must hold, per skill of {list(self.skill_names)}, shapes of "
+                             f"{self.prior.latent_dim} floats")
         for key in ("vae", "feasibility", "cost", "policy"):
             if key not in self.models:
                 raise ValueError(f"models lacks {key!r}; has {sorted(self.models)}")
@@ -150,6 +158,8 @@ class TrainedModels:
             "filter_epsilon": self.filter_epsilon,
             "reach": None if self.reach is None else [list(r) for r in self.reach],
             "vertical_range": None if self.vertical_range is None else [list(r) for r in self.vertical_range],
+            "input_shapes": None if self.input_shapes is None
+            else [[list(z) for z in skill] for skill in self.input_shapes],
         }
 
 
@@ -206,5 +216,7 @@ def load_trained(path: str | os.PathLike[str], map_location: str | torch.device 
         reach=None if meta.get("reach") is None else tuple(tuple(float(v) for v in r) for r in meta["reach"]),
         vertical_range=None if meta.get("vertical_range") is None
         else tuple(tuple(float(v) for v in r) for r in meta["vertical_range"]),
+        input_shapes=None if meta.get("input_shapes") is None
+        else tuple(tuple(tuple(float(v) for v in z) for z in skill) for skill in meta["input_shapes"]),
     )
     return bundle.to(map_location).eval()

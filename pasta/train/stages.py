@@ -22,6 +22,7 @@ from pasta.config.schema import TaskConfig
 from pasta.models.latent_prior import LatentPrior
 from pasta.models.model_config import ModelConfig
 from pasta.models.variants import variant_spec
+from pasta.plan.input_shapes import skill_input_shapes
 from pasta.plan.reach import skill_reach, skill_vertical_range
 from pasta.train.bundle import DEFAULT_FILTER_EPSILON
 from pasta.train.datasets import DecodedGoals, TransitionSampler, split_trajectories, vae_clouds
@@ -118,8 +119,12 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
                          settings or HeadsSettings.from_config(cfg, variant, seed), progress_path,
                          model_config=model_config, on_epoch=on_epoch, device=device)
     centres = latents[:, cfg.train.latent_dim :].cpu()
+    whole_pairs = [train_sampler.whole_skill_pairs(k) for k in range(len(cfg.skills))]
     transitions = [[(centres[o], centres[g]) for o, g in zip(pairs.obs, pairs.goal, strict=True)]
-                   for pairs in (train_sampler.whole_skill_pairs(k) for k in range(len(cfg.skills)))]
+                   for pairs in whole_pairs]
     reach = tuple(skill_reach(skill) for skill in transitions)
     vertical = tuple(skill_vertical_range(skill) for skill in transitions)
-    return dataclasses.replace(result, bundle=dataclasses.replace(result.bundle, reach=reach, vertical_range=vertical))
+    shapes = tuple(tuple(tuple(float(v) for v in z) for z in skill_input_shapes(
+        (latents[o].cpu() for o in pairs.obs), cfg.train.latent_dim).tolist()) for pairs in whole_pairs)
+    return dataclasses.replace(result, bundle=dataclasses.replace(result.bundle, reach=reach, vertical_range=vertical,
+                                                                  input_shapes=shapes))

@@ -52,6 +52,9 @@ def test_train_flow_logs_metrics_figures_and_the_bundle(prefect_server, isolated
     assert bundle.skill_names == ("cut", "rearrange") and bundle.filter_epsilon > 0
     # measured on the training transitions, per axis
     assert len(bundle.reach) == 2 and all(0 <= r < 1 for reach in bundle.reach for r in reach)
+    # and the shapes every skill started from (one z per input entity of its training transitions)
+    assert len(bundle.input_shapes) == 2 and all(len(skill) > 0 for skill in bundle.input_shapes)
+    assert {len(z) for skill in bundle.input_shapes for z in skill} == {bundle.prior.latent_dim}
 
     # without the local file, locate() fetches the run's artifact
     (checkpoint_dir("CutRearrange", "smoke", "pasta") / "models.pt").unlink()
