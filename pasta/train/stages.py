@@ -124,7 +124,7 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
                    for pairs in whole_pairs]
     reach = tuple(skill_reach(skill) for skill in transitions)
     vertical = tuple(skill_vertical_range(skill) for skill in transitions)
-    shapes = tuple(tuple(tuple(float(v) for v in z) for z in skill_input_shapes(
-        (latents[o].cpu() for o in pairs.obs), cfg.train.latent_dim).tolist()) for pairs in whole_pairs)
+    shapes = tuple(tuple(map(tuple, skill_input_shapes((latents[o].cpu() for o in pairs.obs),
+                                                       cfg.train.latent_dim).tolist())) for pairs in whole_pairs)
     return dataclasses.replace(result, bundle=dataclasses.replace(result.bundle, reach=reach, vertical_range=vertical,
                                                                   input_shapes=shapes))
