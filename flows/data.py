@@ -28,7 +28,7 @@ from pasta import progress, tracking
 from pasta.config import load
 from pasta.config.schema import TaskConfig
 from pasta.data.configurations import generate_skill_problems, skill_problem, split_problems
-from pasta.data.demos import DemoResult, check_method, generate_demo
+from pasta.data.demos import DemoResult, check_method, demonstration_key, generate_demo
 from pasta.data.storage import DatasetError, DatasetIndex, read_trajectory
 from pasta.paths import data_dir
 
@@ -40,33 +40,38 @@ def dataset_dir(task_name: str, profile: str, method: str) -> Path:
     return path
 
 
-def existing_result(path: Path) -> dict | None:
-    """The metadata of a finished, readable trajectory file, or None (missing or corrupt)."""
+def existing_result(path: Path, key: str) -> dict | None:
+    """The metadata of a finished, readable trajectory file made under the demonstration key ``key``
+    (:func:`pasta.data.demos.demonstration_key`), or None: missing, corrupt, or made under another config,
+    method or seed (a file from before the keys counts as another)."""
     if not path.exists():
         return None
     try:
-        return read_trajectory(path)[1]
+        metadata = read_trajectory(path)[1]
     except DatasetError:
         return None
+    return metadata if metadata.get("demonstration_key") == key else None
 
 
 @task(task_run_name="demo-{task_name}-{trajectory_id}")
 def make_demo(task_name: str, profile: str, overrides: tuple[str, ...], trajectory_id: int, method: str,
               out_dir: str, seed: int) -> dict:
-    """Make one demo (in a worker process) unless its file already exists; returns its metadata.
+    """Make one demo (in a worker process) unless its file already exists under the same demonstration key
+    (config less training, planning and evaluation; method; seed); returns its metadata.
 
     Taichi must own a process's main thread; where tasks run in a worker thread (a Dask worker), the
     demo is made by a child ``python -m flows.data`` process and its metadata read back from the file.
     """
     cfg = load(task_name, profile, list(overrides))
     path = Path(out_dir) / f"trajectory_{trajectory_id:06d}.npz"
-    done = existing_result(path)
+    key = demonstration_key(cfg, method, seed)
+    done = existing_result(path, key)
     if done is not None:
         return {**done, "reused": True}
     if not in_main_thread():
         arguments = [task_name, profile, list(overrides), trajectory_id, method, out_dir, seed]
         subprocess.run([sys.executable, "-m", "flows.data", json.dumps(arguments)], check=True)
-        made = existing_result(path)
+        made = existing_result(path, key)
         if made is None:
             raise RuntimeError(f"the demo process for {task_name} trajectory {trajectory_id} wrote no {path}")
         return {**made, "path": str(path), "reused": False}

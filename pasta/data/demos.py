@@ -7,6 +7,8 @@ chosen actions are then replayed in the ordinary (hard-contact) simulator while
 the observations are recorded, and the trajectory is written as one ``.npz``.
 """
 
+import hashlib
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -95,6 +97,18 @@ def shape_distance(points: np.ndarray, target: np.ndarray, seed: int) -> float:
     return earth_movers_distance(points, target[: len(points)], rng=np.random.default_rng(seed))
 
 
+# Config sections that no demonstration reads: changing them keeps the demonstrations already made.
+DEMONSTRATION_IRRELEVANT = ("train", "policy", "plan", "eval")
+
+
+def demonstration_key(cfg: TaskConfig, method: str, seed: int) -> str:
+    """A digest of all that decides a demonstration: the resolved config less ``DEMONSTRATION_IRRELEVANT``,
+    the method and the seed. Stored with each demonstration; a rerun reuses a file only under an equal key."""
+    decided = {"config": cfg.model_dump(mode="json", exclude=set(DEMONSTRATION_IRRELEVANT)),
+               "method": method, "seed": int(seed)}
+    return hashlib.sha256(json.dumps(decided, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def generate_demo(cfg: TaskConfig, problem: SkillProblem, trajectory_id: int, method: str, out_dir: Path,
                   seed: int = 0) -> DemoResult:
     """Make, replay and store one demo; returns where it went and how well it did."""
@@ -152,6 +166,7 @@ def generate_demo(cfg: TaskConfig, problem: SkillProblem, trajectory_id: int, me
         "scripted_normalised_performance": scripted_perf, "gbto_normalised_performance": optimised_perf,
         "gbto_losses": list(losses), "seed": seed,
         "aim_shift": list((aim or Aim()).shift), "aim_scale": list((aim or Aim()).scale),
+        "demonstration_key": demonstration_key(cfg, method, seed),
     }
     write_trajectory(path, arrays, metadata)
     return DemoResult(path, trajectory_id, problem.config_id, problem.skill, method, emd_initial, emd_final,

@@ -23,11 +23,15 @@ def test_data_flow_makes_demos_once_and_logs_them(prefect_server, isolated_store
 
     second = data.run("CutRearrange", "smoke", method="scripted", workers=1)
     assert second["made"] == 0 and second["reused"] == first["demos"]
+    # Settings that no demonstration reads keep the demonstrations.
+    third = data.run("CutRearrange", "smoke", method="scripted", workers=1,
+                     overrides=("train.policy_lr=0.002", "plan.samples=7", "eval.success_threshold=0.5"))
+    assert third["made"] == 0 and third["reused"] == first["demos"]
     assert [f.stat().st_mtime_ns for f in files] == mtimes, "a finished demo was written again"
 
     mlflow.set_tracking_uri(uri)
     runs = mlflow.search_runs(experiment_names=["pasta/CutRearrange"])
-    assert len(runs) == 2
+    assert len(runs) == 3
     assert set(runs["tags.pasta.stage"]) == {"data"}
     assert (runs["metrics.demos"] == first["demos"]).all()
     assert runs["metrics.performance_median"].notna().all()
@@ -48,6 +52,25 @@ def test_data_flow_resumes_after_a_lost_demo(prefect_server, isolated_store):
     victim.write_bytes(victim.read_bytes()[:100])  # an interrupted or corrupted file
     second = data.run("CRS", "smoke", method="scripted", workers=1)
     assert second["made"] == 1 and second["reused"] == first["demos"] - 1
+
+
+def test_data_flow_remakes_a_demo_made_under_another_config(prefect_server, isolated_store):
+    """A file whose demonstration key differs (another config, method or seed; or no key: an older file)
+    is made again rather than reused."""
+    from flows import data
+    from pasta.data.storage import read_trajectory, write_trajectory
+
+    tmp_path, _ = isolated_store
+    first = data.run("CRS", "smoke", method="scripted", workers=1)
+    folder = tmp_path / "home" / "data" / "CRS" / "smoke" / "scripted"
+    stale, keyless = sorted(folder.glob("trajectory_*.npz"))[:2]
+    arrays, metadata = read_trajectory(stale)
+    write_trajectory(stale, arrays, {**metadata, "demonstration_key": "made-elsewhere"})
+    arrays, metadata = read_trajectory(keyless)
+    write_trajectory(keyless, arrays, {k: v for k, v in metadata.items() if k != "demonstration_key"})
+    second = data.run("CRS", "smoke", method="scripted", workers=1)
+    assert second["made"] == 2 and second["reused"] == first["demos"] - 2
+    assert read_trajectory(stale)[1]["demonstration_key"] == read_trajectory(keyless)[1]["demonstration_key"]
 
 
 def test_bad_names_are_refused_before_anything_runs(isolated_store):

@@ -169,3 +169,24 @@ def test_simulation_with_the_fast_svd_follows_the_builtin():
     # Measured: 2.5e-6 in x and 2.5e-5 in F (float32 round-off, grown over 80 substeps).
     assert np.abs(finals["fast"]["x"] - finals["taichi"]["x"]).max() < 2e-5
     np.testing.assert_allclose(finals["fast"]["F"], finals["taichi"]["F"], atol=2e-4)
+
+
+def test_families_a_pressed_dough_may_reach_match_numpy():
+    """Families a simulation may produce that the tests above sample thinly: two singular values equal to
+    1e-9..1e-3 and the third anywhere below, three nearly equal, two nearly zero, axis-aligned diagonals with
+    sparse perturbations down to 1e-9, and trial matrices (I + dt C) F with |dt C| up to 30. (Measured with
+    400 000 matrices per family: no non-finite result, reconstruction within 8e-7.)"""
+    rng = np.random.default_rng(5)
+    n = 20_000
+    a = np.exp(rng.uniform(-3, 1, (n, 1)))
+    pair = np.concatenate([a, a * (1 + 10.0 ** rng.uniform(-9, -3, (n, 1))), np.exp(rng.uniform(-7, 1, (n, 1)))], 1)
+    triple = a * (1 + 10.0 ** rng.uniform(-9, -2, (n, 3)) * rng.standard_normal((n, 3)))
+    needle = np.concatenate([a, 10.0 ** rng.uniform(-8, -2, (n, 2))], 1)
+    diagonal = np.zeros((n, 3, 3))
+    diagonal[:, [0, 1, 2], [0, 1, 2]] = rng.choice([0.01, 0.1, 0.5, 1.0, 1.5], (n, 3))
+    diagonal += 10.0 ** rng.uniform(-9, -1, (n, 1, 1)) * rng.standard_normal((n, 3, 3)) * (rng.random((n, 3, 3)) < 0.3)
+    dt_C = 10.0 ** rng.uniform(-2, 1.5, (n, 1, 1)) * rng.standard_normal((n, 3, 3))
+    trial = (np.eye(3) + dt_C) @ with_singular_values(rng, np.exp(rng.uniform(np.log(0.05), np.log(2), (n, 3))))
+    F = float32(np.concatenate([with_singular_values(rng, pair), with_singular_values(rng, triple),
+                                with_singular_values(rng, needle), diagonal, trial]))
+    assert_valid_svd(F, *decompose(F)["fast"])
