@@ -29,6 +29,7 @@ from pasta.config.schema import TaskConfig
 from pasta.data.aim_search import Rest, search_aim
 from pasta.data.configurations import tool_clearance
 from pasta.data.skills import place_tool_for_skill, scripted_actions, skill_tool
+from pasta.evaluate.blowups import save_blowup
 from pasta.evaluate.chunk_ensemble import ChunkEnsemble
 from pasta.evaluate.encoding import segment
 from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_action
@@ -201,28 +202,33 @@ def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step
             (``eval.aim_search_rollouts`` > 1; :func:`pasta.data.aim_search.search_aim`).
 
     Returns:
-        None, or why the simulation blew up (step and value); the state before the skill is then restored.
+        None, or why the simulation blew up (step and value, and where it is kept for a replay without the
+        models: :mod:`pasta.evaluate.blowups`); the state before the skill is then restored.
     """
     cfg = env.cfg
     before_skill = env.get_state()
+    start, actions = None, []
     try:
         scripted = executor == "scripted" or skill in cfg.eval.scripted_skills
         if scripted and cfg.eval.aim_search_rollouts > 1:
             search_aim(env, skill, target, mask, cfg.eval.aim_search_rollouts, cfg.sim.settle_steps, rest)
             return None  # the environment is at the end of the best rollout, settled
         place_tool_for_skill(env, skill, mask, target)
-        if scripted:
-            for action in scripted_actions(env, skill, target, mask):
-                env.step(action)
-        else:
-            if bundle is None:
-                raise ValueError(f"the policy executor needs trained models (skill {skill!r})")
-            _run_policy(env, bundle, skill, skill_tool(cfg, skill).name, plan_step, np.flatnonzero(mask),
-                        goal_points, goal_latents, rng)
-        env.settle(cfg.sim.settle_steps)
+        start = env.get_state()
+        with env.logging_actions() as actions:
+            if scripted:
+                for action in scripted_actions(env, skill, target, mask):
+                    env.step(action)
+            else:
+                if bundle is None:
+                    raise ValueError(f"the policy executor needs trained models (skill {skill!r})")
+                _run_policy(env, bundle, skill, skill_tool(cfg, skill).name, plan_step, np.flatnonzero(mask),
+                            goal_points, goal_latents, rng)
+            env.settle(cfg.sim.settle_steps)
     except SimulationError as error:
+        kept = "" if start is None else f" (kept for replay: {save_blowup(cfg, start, actions, str(error))})"
         env.set_state(before_skill)
-        return f"plan step {plan_step} ({skill}): {error}"
+        return f"plan step {plan_step} ({skill}): {error}{kept}"
     return None
 
 

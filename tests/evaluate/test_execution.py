@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,12 +12,14 @@ from torch import nn
 
 from pasta.config import load
 from pasta.data.configurations import evaluation_problems, tool_clearance
+from pasta.evaluate.blowups import load_blowup, replay_blowup
 from pasta.evaluate.execution import already_reached, execute_plan, executor_label
 from pasta.evaluate.policy_action import NonFiniteActionError, checked_action
 from pasta.evaluate.problem import prepare_problem
 from pasta.models.vae import VAEConfig
 from pasta.plan.result import Plan
 from pasta.sim.engine import SimulationError
+from pasta.sim.envs import make_env
 from pasta.sim.tool_points import world_sdf
 from pasta.train.bundle import TrainedModels
 from tests.evaluate.conftest import FAST
@@ -217,7 +220,8 @@ def test_unknown_executor_is_refused(cfg, bundle):
         execute_plan(cfg, bundle, None, None, "magic", np.random.default_rng(0))
 
 
-def test_a_skill_that_blows_up_the_simulation_is_undone_and_reported(cfg, bundle, monkeypatch):
+def test_a_skill_that_blows_up_the_simulation_is_undone_and_reported(cfg, bundle, monkeypatch, tmp_path):
+    monkeypatch.setenv("PASTA_HOME", str(tmp_path))
     env, plan = cut_plan(cfg, bundle)
     before = env.particles().copy()
     real_step = env.step
@@ -233,3 +237,25 @@ def test_a_skill_that_blows_up_the_simulation_is_undone_and_reported(cfg, bundle
     assert execution.failure is not None and execution.failure.startswith("plan step 1 (cut): simulation blew up")
     np.testing.assert_array_equal(env.particles(), before)
     np.testing.assert_array_equal(execution.final.dough_points, env.observation().dough_points)
+
+
+def test_a_real_blow_up_is_kept_and_replays_without_the_models(cfg, bundle, monkeypatch, tmp_path):
+    """Dough a thousand times stiffer than the task's blows up on the cut's first step; the execution keeps the
+    start and the actions, and a replay from the file alone raises the same error."""
+    monkeypatch.setenv("PASTA_HOME", str(tmp_path))
+    env, plan = cut_plan(cfg, bundle)
+    stiff = cfg.model_copy(update={"material": cfg.material.model_copy(update={"youngs_modulus_pa": 5e6})})
+    stiff_env = make_env(stiff)
+    stiff_env.set_state(env.get_state())
+    execution = execute_plan(stiff, bundle, stiff_env, plan, "scripted", np.random.default_rng(0))
+    failure = execution.failure
+    assert failure is not None and "simulation blew up" in failure, failure
+    kept = Path(failure.rsplit("kept for replay: ", 1)[1].rstrip(")"))
+    assert kept.parent == tmp_path / "blowups" and kept.is_file()
+    kept_cfg, _, actions, message = load_blowup(kept)
+    assert kept_cfg == stiff and len(actions) >= 1 and message in failure
+    with pytest.raises(SimulationError) as replayed:
+        replay_blowup(kept)
+    assert str(replayed.value) == message
+    before = replay_blowup(kept, n_actions=len(actions) - 1)  # the step before the one that blew up
+    assert np.isfinite(before.particles()).all()

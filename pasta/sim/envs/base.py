@@ -19,9 +19,10 @@ shared simulator directly between two calls of an environment is not detected.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import weakref
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any, ClassVar
@@ -178,6 +179,7 @@ class DoughEnv:
         self._tool_index = {name: k for k, name in enumerate(self.tool_names)}
         self._stash: dict[str, np.ndarray] | None = None
         self._ready = False
+        self._action_logs: list[list[np.ndarray]] = []  # open logging_actions() blocks
         self._simulator: MPMSimulator = simulator_for(cfg.sim, cfg.tools, differentiable=differentiable)
         self._sim()  # claim it: stash the previous owner's state, apply this task's parameters
         self._local_points: dict[str, ToolPointSet] = {
@@ -354,9 +356,22 @@ class DoughEnv:
         """Advance one environment step under ``action`` (action_dim,) in [-1, 1]."""
         sim = self._require_reset()
         a = self.check_action(action)
+        for log in self._action_logs:
+            log.append(a.copy())
         sim.step(a, step=self._step)
         self._step += 1
         return self.observation()
+
+    @contextlib.contextmanager
+    def logging_actions(self) -> Iterator[list[np.ndarray]]:
+        """Within the block, every action :meth:`step` takes, checked and float32 (A,), is appended to the
+        yielded list, before it is simulated (so a step that raises is in it)."""
+        log: list[np.ndarray] = []
+        self._action_logs.append(log)
+        try:
+            yield log
+        finally:
+            self._action_logs.remove(log)
 
     def settle(self, n_steps: int | None = None) -> Observation:
         """Run ``n_steps`` (default ``cfg.sim.settle_steps``) steps with zero action."""
