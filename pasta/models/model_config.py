@@ -24,7 +24,8 @@ __all__ = ["ModelConfig"]
 class ModelConfig:
     """Hyper-parameters of the VAE, the feasibility and cost predictors and the three policy kinds.
 
-    Every part that sees latents must agree on ``latent_dim``.
+    Every part that sees latents must agree on ``latent_dim``. ``policy_members`` > 1 makes each skill's set
+    policy an ensemble of that many (``pasta.models.policy_ensemble``); the two policy ablations stay single.
     """
 
     vae: VAEConfig = field(default_factory=VAEConfig)
@@ -33,8 +34,11 @@ class ModelConfig:
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     tool_concat_policy: ToolConcatPolicyConfig = field(default_factory=ToolConcatPolicyConfig)
     latent_policy: LatentPolicyConfig = field(default_factory=LatentPolicyConfig)
+    policy_members: int = 1
 
     def __post_init__(self) -> None:
+        if self.policy_members < 1:
+            raise ValueError(f"policy_members must be at least 1, got {self.policy_members}")
         dims = {
             "vae": self.vae.latent_dim,
             "feasibility": self.feasibility.latent_dim,
@@ -57,6 +61,7 @@ class ModelConfig:
             policy=self.policy,
             tool_concat_policy=self.tool_concat_policy,
             latent_policy=replace(self.latent_policy, latent_dim=latent_dim),
+            policy_members=self.policy_members,
         )
 
     def with_vae_height_input(self, height_input: bool) -> ModelConfig:
@@ -80,6 +85,10 @@ class ModelConfig:
         return replace(self, policy=replace(self.policy, frame=frame, phase_input=phase_input, chunk=chunk,
                                             shape_quantiles=shape_quantiles, gap_features=gap_features,
                                             heading_pairs=heading_pairs, previous_action_input=previous_action_input))
+
+    def with_policy_members(self, members: int) -> ModelConfig:
+        """This config with ``members`` set policies per skill (e.g. from the task config's ``policy.members``)."""
+        return replace(self, policy_members=members)
 
     def to_dict(self) -> dict[str, Any]:
         """Nested plain dict (tuples stay tuples)."""

@@ -34,6 +34,7 @@ from pasta.models.feasibility import SetFeasibilityPredictor
 from pasta.models.model_config import ModelConfig
 from pasta.models.policy import SetPolicy
 from pasta.models.policy_ablations import LatentSetPolicy, ToolConcatPolicy
+from pasta.models.policy_ensemble import PolicyEnsemble
 from pasta.models.vae import PointCloudVAE
 
 __all__ = ["VARIANTS", "VARIANT_SPECS", "VariantSpec", "build_models", "variant_spec"]
@@ -78,11 +79,15 @@ VARIANT_SPECS: Mapping[str, VariantSpec] = MappingProxyType(
 )
 
 # (policy_on_latents, tool_state_after_encoder) -> policy for one skill.
-def _set_policy(action_dim: int, config: ModelConfig, skill: int) -> SetPolicy:
+def _set_policy(action_dim: int, config: ModelConfig, skill: int) -> SetPolicy | PolicyEnsemble:
     pairs = config.policy.heading_pairs
     if pairs and len(pairs) <= skill:
         raise ValueError(f"policy.heading_pairs has {len(pairs)} entries; skill index {skill} has none")
-    return SetPolicy(action_dim, config.policy, heading_pairs=pairs[skill] if pairs else ())
+
+    def member() -> SetPolicy:
+        return SetPolicy(action_dim, config.policy, heading_pairs=pairs[skill] if pairs else ())
+
+    return member() if config.policy_members == 1 else PolicyEnsemble.build(config.policy_members, member)
 
 
 # The two policy ablations keep the appendix's inputs: no heading frame.

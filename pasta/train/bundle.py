@@ -167,13 +167,14 @@ def untrained(cfg: TaskConfig, variant: str, prior: LatentPrior, *, model_config
               seed: int = 0) -> TrainedModels:
     """Freshly initialised networks for ``cfg``'s skills and action space (the start of training); ``cfg`` sets
     the latent size and the policies' point encoder, inputs and outputs (``policy.encoder``, ``frame``,
-    ``phase_input``, ``chunk``, ``shape_quantiles``, ``gap_features``, ``heading_skills``, ``previous_action``) of
-    ``model_config``."""
+    ``phase_input``, ``chunk``, ``shape_quantiles``, ``gap_features``, ``heading_skills``, ``previous_action``,
+    ``members``) of ``model_config``."""
     base = (model_config or ModelConfig()).with_latent_dim(cfg.train.latent_dim).with_vae_height_input(
         cfg.train.vae_height_input)
     config = base.with_policy_encoder(cfg.policy.encoder).with_policy_io(
         cfg.policy.frame, cfg.policy.phase_input, cfg.policy.chunk, cfg.policy.shape_quantiles,
-        cfg.policy.gap_features, heading_pairs_of(cfg), cfg.policy.previous_action)
+        cfg.policy.gap_features, heading_pairs_of(cfg), cfg.policy.previous_action).with_policy_members(
+        cfg.policy.members)
     spec = variant_spec(variant)
     return TrainedModels(
         task=cfg.task,

@@ -35,6 +35,7 @@ from pasta.config.schema import TaskConfig
 from pasta.models.checkpoint import load_checkpoint, restore_models, save_checkpoint
 from pasta.models.feasibility_samples import add_latent_noise
 from pasta.models.policy import uniform_point_noise
+from pasta.models.policy_ensemble import policy_members
 from pasta.models.variants import VariantSpec, variant_spec
 from pasta.train.bundle import TrainedModels
 from pasta.train.datasets import PolicySamples, TransitionSampler, pad_sets
@@ -137,14 +138,19 @@ def policy_loss(policy: nn.Module, spec: VariantSpec, settings: PolicySettings, 
                 latents: torch.Tensor, latent_dim: int, generator: torch.Generator) -> torch.Tensor:
     """``L_pi``: the squared action error summed over the ``A`` dimensions, averaged over the ``B`` samples
     (noisy inputs, model_spec §4.4) and over the ``H`` steps of the chunk a policy predicts (``H`` = 1 but for
-    a set policy with ``chunk`` > 1); the forward pass in ``settings.precision``, the error in float32."""
+    a set policy with ``chunk`` > 1); the forward pass in ``settings.precision``, the error in float32. For an
+    ensemble (``PolicyEnsemble``) the mean of its members' own losses, each member with its own input noise, so
+    that each member fits the demonstrations by itself."""
     if settings.mirror_signs is not None:
         samples = _mirrored(samples, settings.mirror_signs, settings.mirror_planes, generator)
-    with training_autocast(settings.precision, latents.device):
-        predicted = policy_forward(policy, spec, samples, latents, latent_dim, settings, generator)
-    steps = predicted.shape[1] // samples.actions.shape[1]
-    target = samples.action_chunks[:, : predicted.shape[1]].to(latents.device)
-    return (predicted.float() - target).square().sum(dim=1).mean() / steps
+    losses = []
+    for member in policy_members(policy):
+        with training_autocast(settings.precision, latents.device):
+            predicted = policy_forward(member, spec, samples, latents, latent_dim, settings, generator)
+        steps = predicted.shape[1] // samples.actions.shape[1]
+        target = samples.action_chunks[:, : predicted.shape[1]].to(latents.device)
+        losses.append((predicted.float() - target).square().sum(dim=1).mean() / steps)
+    return torch.stack(losses).mean()
 
 
 def _mirrored(samples: PolicySamples, signs: tuple[tuple[float, ...], tuple[float, ...]], planes: str,

@@ -14,8 +14,9 @@ import torch
 
 from pasta.models import variant_spec
 from pasta.models.checkpoint import load_checkpoint
+from pasta.models.policy_ensemble import PolicyEnsemble
 from pasta.train import policy_loop
-from pasta.train.bundle import untrained
+from pasta.train.bundle import load_trained, save_trained, untrained
 from pasta.train.datasets import TransitionSampler
 from pasta.train.entities import PairChamfer
 from pasta.train.policy_loop import PolicySettings, lr_at, train_policies, weighted_rows
@@ -287,3 +288,69 @@ def test_mirroring_reflects_the_previous_action_as_it_reflects_the_chunk(cfg, tr
     torch.testing.assert_close(mirrored.previous_actions, mirrored.actions)
     torch.testing.assert_close(mirrored.actions, mirrored.action_chunks[:, :width])
     assert not torch.equal(mirrored.actions, samples.actions)  # some samples were reflected
+
+
+def test_an_ensemble_trains_each_member_on_its_own_loss_acts_their_mean_and_survives_a_save(
+        tmp_path, cfg, training_data):
+    """``policy.members: 2``: both members start apart, each one's own held-out error falls (the loss is the mean
+    of the members' losses, not the loss of their mean), the ensemble predicts the members' mean, and the bundle
+    saved and loaded again predicts the same."""
+    config, _, latents, prior, sampler, _ = heads_inputs(cfg, training_data, "pasta")
+    cfg = cfg.model_copy(update={"policy": cfg.policy.model_copy(update={"members": 2})})
+    bundle = untrained(cfg, "pasta", prior, model_config=config, seed=0)
+    ensemble = bundle.models["policy"][0]
+    assert isinstance(ensemble, PolicyEnsemble) and bundle.model_config.policy_members == 2
+    first, second = ensemble.members
+    assert not _equal([first.state_dict()], [second.state_dict()])
+    rng = np.random.default_rng(0)
+    held_out = [sampler.policy_samples(k, sampler.transitions[k], rng, 8) for k in range(2)]
+    spec, samples = variant_spec("pasta"), held_out[0]
+
+    def error(policy) -> float:
+        return policy_loop.heldout_mse(policy, spec, samples, latents, 2)
+
+    before = [error(member) for member in ensemble.members]
+    settings = dataclasses.replace(SETTINGS, steps=30, eval_every=30)
+    train_policies(bundle, sampler, held_out, latents, settings, tmp_path / "p.pt")
+    after = [error(member) for member in ensemble.members]
+    assert all(a < 0.7 * b for a, b in zip(after, before, strict=True))
+    with torch.no_grad():
+        members = [policy_loop.policy_forward(m.eval(), spec, samples, latents, 2) for m in ensemble.members]
+        mean = policy_loop.policy_forward(ensemble.eval(), spec, samples, latents, 2)
+    torch.testing.assert_close(mean, (members[0] + members[1]) / 2)
+    save_trained(tmp_path / "models.pt", bundle)
+    loaded = load_trained(tmp_path / "models.pt")
+    assert loaded.model_config.policy_members == 2
+    with torch.no_grad():
+        again = policy_loop.policy_forward(loaded.models["policy"][0], spec, samples, latents, 2)
+    torch.testing.assert_close(again, mean)
+
+
+def test_the_ensemble_loss_is_the_mean_of_the_members_losses(cfg, training_data):
+    """Without input noise the ensemble's training loss equals the mean of its members' losses, and a member's
+    gradient is its own loss's over the member count: no member is trained through the others (the loss of the
+    members' mean action would give every member a gradient that depends on the others' actions)."""
+    config, _, latents, prior, sampler, _ = heads_inputs(cfg, training_data, "pasta")
+    cfg = cfg.model_copy(update={"policy": cfg.policy.model_copy(update={"members": 3})})
+    ensemble = untrained(cfg, "pasta", prior, model_config=config, seed=0).models["policy"][1]
+    samples = sampler.policy_samples(1, sampler.transitions[1], np.random.default_rng(0), 8)
+    settings, spec = dataclasses.replace(SETTINGS, point_noise=0.0), variant_spec("pasta")
+
+    def loss(policy) -> torch.Tensor:
+        return policy_loop.policy_loss(policy, spec, settings, samples, latents, 2, torch.Generator())
+
+    members = [float(loss(member)) for member in ensemble.members]
+    first = ensemble.members[0]
+    ensemble.zero_grad()
+    total = loss(ensemble)
+    total.backward()
+    together = [p.grad.clone() for p in first.parameters()]
+    ensemble.zero_grad()
+    loss(first).backward()
+    for shared, alone in zip(together, first.parameters(), strict=True):
+        torch.testing.assert_close(shared, alone.grad / 3)
+    assert float(total) == pytest.approx(np.mean(members), rel=1e-5)
+    with torch.no_grad():
+        mean_action = policy_loop.policy_forward(ensemble, spec, samples, latents, 2)
+    loss_of_mean = float((mean_action - samples.action_chunks[:, : mean_action.shape[1]]).square().sum(1).mean())
+    assert loss_of_mean < float(np.mean(members))
