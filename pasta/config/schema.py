@@ -358,9 +358,9 @@ class PolicyNetConfig(Frozen):
     ``encoder``: ``pointnet2``, the appendix's PointNet++ over the role-tagged union of the observation, tool
     and goal clouds; or ``pointnet``, a compact PointNet per cloud, max-pooled and concatenated, about 25x
     fewer operations per training step. The tool-concat ablation follows the choice; the latent-set policy
-    has no point encoder. ``frame``, ``phase_input``, ``previous_action``, ``chunk``, ``shape_quantiles``,
-    ``gap_features`` and ``members`` shape the set policy (PASTA's) only: the two policy ablations of Table 5
-    keep the appendix's inputs, one action per call and one network per skill.
+    has no point encoder. ``frame``, ``phase_input``, ``previous_action``, ``chunk``, ``shape_quantiles`` and
+    ``gap_features`` shape the set policy (PASTA's) only: the two policy ablations of Table 5 keep the appendix's
+    inputs and one action per call. ``members`` applies to every variant's policies alike.
     """
 
     encoder: Literal[POLICY_ENCODERS] = "pointnet2"
@@ -400,8 +400,8 @@ class PolicyNetConfig(Frozen):
     # a box or a gripper moving along x and z; a named skill the task does not have is left alone (profiles
     # serve every task). Empty (the appendix's): none.
     heading_skills: tuple[Literal["cut", "push", "rearrange", "spread", "lift", "move", "gather"], ...] = ()
-    # Set policies per skill, each trained on its own loss from its own initial weights, executed as the mean of
-    # their actions (pasta.models.policy_ensemble). 1 (the appendix's): one policy per skill.
+    # Policies per skill (every variant's kind), each trained on its own loss from its own initial weights,
+    # executed as the mean of their actions (pasta.models.policy_ensemble). 1 (the appendix's): one per skill.
     members: int = Field(default=1, ge=1)
 
     @model_validator(mode="after")

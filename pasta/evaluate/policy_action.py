@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from pasta.models.policy_ablations import LatentSetPolicy, ToolConcatPolicy
+from pasta.models.policy_ensemble import policy_members
 from pasta.train.bundle import TrainedModels
 
 __all__ = ["NonFiniteActionError", "PolicyInput", "checked_action", "policy_action"]
@@ -53,16 +54,17 @@ def policy_action(bundle: TrainedModels, skill: str, seen: PolicyInput) -> np.nd
     """The raw ``(H * action_dim,)`` float64 actions of ``skill``'s policy for this step and the ``H - 1`` next
     (``H`` = 1 unless the policy predicts chunks; no clipping, no checks), computed on the policy's device."""
     policy = bundle.policy(skill)
+    kind = policy_members(policy)[0]  # an ensemble (policy.members) takes its members' inputs
     device = next(itertools.chain(policy.parameters(), policy.buffers()), torch.empty(0)).device
 
     def batch(values: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.array(values, dtype=np.float32)).unsqueeze(0).to(device)
 
     with torch.no_grad():
-        if isinstance(policy, LatentSetPolicy):
+        if isinstance(kind, LatentSetPolicy):
             obs = bundle.vae.encode_entities(batch(seen.obs_points)).unsqueeze(0)  # (1, 1, E)
             action = policy(obs, seen.goal_latents.float().unsqueeze(0).to(device))
-        elif isinstance(policy, ToolConcatPolicy):
+        elif isinstance(kind, ToolConcatPolicy):
             action = policy(batch(seen.obs_points), batch(seen.goal_points), batch(seen.tool_state))
         else:
             phase = torch.tensor([seen.phase], dtype=torch.float32, device=device)

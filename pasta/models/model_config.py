@@ -24,8 +24,8 @@ __all__ = ["ModelConfig"]
 class ModelConfig:
     """Hyper-parameters of the VAE, the feasibility and cost predictors and the three policy kinds.
 
-    Every part that sees latents must agree on ``latent_dim``. ``policy_members`` > 1 makes each skill's set
-    policy an ensemble of that many (``pasta.models.policy_ensemble``); the two policy ablations stay single.
+    Every part that sees latents must agree on ``latent_dim``. ``policy_members`` > 1 makes each skill's policy
+    (of whichever kind the variant has) an ensemble of that many (``pasta.models.policy_ensemble``).
     """
 
     vae: VAEConfig = field(default_factory=VAEConfig)

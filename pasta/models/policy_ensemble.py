@@ -1,4 +1,4 @@
-"""``PolicyEnsemble``: several set policies of one skill, trained apart, acting as their mean.
+"""``PolicyEnsemble``: several policies of one skill, trained apart, acting as their mean.
 
 Each member starts from its own initial weights and, in training, sees its own draw of the input noise; every
 member fits the demonstrations on its own loss (``pasta.train.policy_loop.policy_loss`` averages the members'

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import partial
 from types import MappingProxyType
 
 import torch
@@ -79,15 +80,11 @@ VARIANT_SPECS: Mapping[str, VariantSpec] = MappingProxyType(
 )
 
 # (policy_on_latents, tool_state_after_encoder) -> policy for one skill.
-def _set_policy(action_dim: int, config: ModelConfig, skill: int) -> SetPolicy | PolicyEnsemble:
+def _set_policy(action_dim: int, config: ModelConfig, skill: int) -> SetPolicy:
     pairs = config.policy.heading_pairs
     if pairs and len(pairs) <= skill:
         raise ValueError(f"policy.heading_pairs has {len(pairs)} entries; skill index {skill} has none")
-
-    def member() -> SetPolicy:
-        return SetPolicy(action_dim, config.policy, heading_pairs=pairs[skill] if pairs else ())
-
-    return member() if config.policy_members == 1 else PolicyEnsemble.build(config.policy_members, member)
+    return SetPolicy(action_dim, config.policy, heading_pairs=pairs[skill] if pairs else ())
 
 
 # The two policy ablations keep the appendix's inputs: no heading frame.
@@ -98,6 +95,11 @@ _POLICY_BUILDERS: Mapping[tuple[bool, bool], Callable[[int, ModelConfig, int], n
         (False, True): lambda action_dim, config, skill: ToolConcatPolicy(action_dim, config.tool_concat_policy),
     }
 )
+
+
+def _members(count: int, build: Callable[[], nn.Module]) -> nn.Module:
+    """One policy from ``build``, or an ensemble of ``count`` (``ModelConfig.policy_members``)."""
+    return build() if count == 1 else PolicyEnsemble.build(count, build)
 
 
 def variant_spec(variant: str) -> VariantSpec:
@@ -140,5 +142,6 @@ def build_models(
             "vae": PointCloudVAE(config.vae),
             "feasibility": nn.ModuleList(SetFeasibilityPredictor(config.feasibility) for _ in range(n_skills)),
             "cost": CostPredictor(config.cost),
-            "policy": nn.ModuleList(build_policy(action_dim, config, k) for k in range(n_skills)),
+            "policy": nn.ModuleList(_members(config.policy_members, partial(build_policy, action_dim, config, k))
+                                    for k in range(n_skills)),
         }

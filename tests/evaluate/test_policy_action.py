@@ -45,3 +45,21 @@ def test_policy_action_is_a_finite_vector_of_the_action_size(cfg, bundle):
         rearrange = bundle.policy("rearrange")(batch(seen.obs_points), batch(seen.tool_points),
                                                batch(seen.goal_points))
     assert not np.array_equal(action, rearrange.reshape(-1).double().numpy()), "the cut skill's own policy"
+
+
+@pytest.mark.parametrize("variant", ["pasta", "tool_concat_policy", "shared_encoder_policy"])
+def test_an_ensemble_acts_the_mean_of_its_members_actions_for_every_policy_kind(cfg, variant):
+    """``policy.members: 2``: the executor reads each member with the inputs of its kind (clouds, the tool state
+    or latents) and acts their mean."""
+    cfg = cfg.model_copy(update={"policy": cfg.policy.model_copy(update={"members": 2})})
+    bundle = untrained(cfg, variant, LatentPrior(2, (0.2, 0.1, 0.2), (0.8, 0.2, 0.8))).eval()
+    seen = _seen(np.random.default_rng(2))
+    together = policy_action(bundle, "cut", seen)
+    ensemble = bundle.models["policy"][0]
+    alone = []
+    for member in ensemble.members:
+        bundle.models["policy"][0] = member
+        alone.append(policy_action(bundle, "cut", seen))
+    bundle.models["policy"][0] = ensemble
+    assert not np.allclose(alone[0], alone[1])
+    np.testing.assert_allclose(together, (alone[0] + alone[1]) / 2, rtol=1e-5, atol=1e-7)

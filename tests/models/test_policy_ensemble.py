@@ -8,6 +8,7 @@ import torch
 
 from pasta.models import ModelConfig, build_models
 from pasta.models.policy import SetPolicy
+from pasta.models.policy_ablations import LatentSetPolicy, ToolConcatPolicy
 from pasta.models.policy_ensemble import PolicyEnsemble, policy_members
 from tests.models.synthetic import tiny_model_config
 
@@ -48,10 +49,11 @@ def test_build_models_makes_one_ensemble_per_skill_with_members_drawn_apart():
     assert all(isinstance(p, SetPolicy) for p in single)
 
 
-def test_the_ablation_policies_stay_single():
+def test_the_ablation_policies_become_ensembles_of_their_own_kind():
     config = tiny_model_config().with_policy_members(2)
-    for variant in ("shared_encoder_policy", "tool_concat_policy"):
-        assert not any(isinstance(p, PolicyEnsemble) for p in build_models(variant, 6, config)["policy"])
+    for variant, kind in (("shared_encoder_policy", LatentSetPolicy), ("tool_concat_policy", ToolConcatPolicy)):
+        policies = build_models(variant, 6, config)["policy"]
+        assert all(isinstance(p, PolicyEnsemble) and all(isinstance(m, kind) for m in p.members) for p in policies)
 
 
 def test_members_round_trip_through_the_dict_and_default_to_one_for_older_checkpoints():
