@@ -87,7 +87,7 @@ class ModelConfig:
                                             heading_pairs=heading_pairs, previous_action_input=previous_action_input))
 
     def with_policy_members(self, members: int) -> ModelConfig:
-        """This config with ``members`` set policies per skill (e.g. from the task config's ``policy.members``)."""
+        """This config with ``members`` policies per skill (e.g. from the task config's ``policy.members``)."""
         return replace(self, policy_members=members)
 
     def to_dict(self) -> dict[str, Any]:

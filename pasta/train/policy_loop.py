@@ -143,14 +143,13 @@ def policy_loss(policy: nn.Module, spec: VariantSpec, settings: PolicySettings, 
     that each member fits the demonstrations by itself."""
     if settings.mirror_signs is not None:
         samples = _mirrored(samples, settings.mirror_signs, settings.mirror_planes, generator)
-    losses = []
-    for member in policy_members(policy):
-        with training_autocast(settings.precision, latents.device):
-            predicted = policy_forward(member, spec, samples, latents, latent_dim, settings, generator)
-        steps = predicted.shape[1] // samples.actions.shape[1]
-        target = samples.action_chunks[:, : predicted.shape[1]].to(latents.device)
-        losses.append((predicted.float() - target).square().sum(dim=1).mean() / steps)
-    return torch.stack(losses).mean()
+    with training_autocast(settings.precision, latents.device):
+        predicted = [policy_forward(member, spec, samples, latents, latent_dim, settings, generator)
+                     for member in policy_members(policy)]
+    width = predicted[0].shape[1]
+    target = samples.action_chunks[:, :width].to(latents.device)
+    steps = width // samples.actions.shape[1]
+    return torch.stack([(p.float() - target).square().sum(dim=1).mean() for p in predicted]).mean() / steps
 
 
 def _mirrored(samples: PolicySamples, signs: tuple[tuple[float, ...], tuple[float, ...]], planes: str,
