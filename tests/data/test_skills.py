@@ -35,13 +35,14 @@ from pasta.config.schema import TASK_NAMES
 from pasta.data import skills
 from pasta.data.skills import available_skills, place_tool_for_skill, scripted_actions, skill_tool
 from pasta.data.skills.cut import split_along_x
+from pasta.data.skills.gripper import FINGER_SINK, _grip_geometry, _gripper_approach, gripper_start
 from pasta.data.skills.motion import Motion
 from pasta.data.skills.push import SMEAR_LIFT, STRAY_SHARE, push_start
-from pasta.data.skills.scene import Scene
+from pasta.data.skills.scene import Scene, collides, world_half_y
 from pasta.geometry.distances import earth_movers_distance
 from pasta.geometry.entities import label_entities
 from pasta.sim.envs import DoughConfiguration, DoughEnv, default_configuration, make_env
-from pasta.sim.envs.base import build_configuration
+from pasta.sim.envs.base import ToolPose, build_configuration
 from pasta.sim.quaternion import quat_to_matrix_np
 from pasta.sim.shapes import BoxPiece, sample_box
 from pasta.sim.tool_points import world_sdf
@@ -220,6 +221,38 @@ def test_planning_reads_the_environment_and_placing_only_moves_the_tool():
     np.testing.assert_allclose(pose.pos[2], piece[:, 2].mean(), atol=1e-3)
     finger_inner = pose.gap - 2 * env.tool("gripper").half_extents[0]
     assert finger_inner > np.ptp(piece[:, 2])  # open around it
+
+
+def bulged_piece(z_low: float, z_high: float, bulge: int) -> Scene:
+    """A box of dough with ``bulge`` more points in its last 0.05 along z (a piece just cut bulges so): its
+    mean lies off the middle of its extent."""
+    rng = np.random.default_rng(0)
+    body = rng.uniform((0.25, 0.06, z_low), (0.35, 0.12, z_high), (2000, 3))
+    extra = rng.uniform((0.25, 0.06, z_high - 0.05), (0.35, 0.12, z_high), (bulge, 3))
+    points = np.concatenate([body, extra])
+    return Scene(points=points, attended=points, destinations=(), bottom=0.06, top=0.12, top_all=0.12)
+
+
+def test_the_gripper_starts_straddling_a_bulged_piece_where_its_open_fingers_clear_it():
+    env, _, _ = rearrange_problem()
+    tool, current = env.tool("gripper"), env.tool_poses()["gripper"]
+    scene = bulged_piece(0.41, 0.575, bulge=1500)
+    grip_y = scene.bottom - FINGER_SINK + world_half_y(tool, current.rot)
+    start = gripper_start(env, "gripper", scene)
+    around_mean = ToolPose(pos=(scene.centre[0], grip_y, scene.centre[2]), rot=current.rot, gap=start.gap)
+    assert collides(tool, around_mean, scene.points)  # fingers around the mean would touch its far edge
+    assert start.pos[1] == pytest.approx(grip_y)  # so it straddles the middle of the extent, at grip height
+    assert not collides(tool, start, scene.points)
+    assert start.pos[2] == pytest.approx(0.4925, abs=2e-3)
+    assert start.pos[2] < scene.centre[2] - 0.02
+    too_wide = bulged_piece(0.40, 0.60, bulge=1500)  # wider than the open fingers: above the dough
+    assert gripper_start(env, "gripper", too_wide).pos[1] > grip_y + 0.05
+    # From that start the scripted rearrange grips at once: it does not go up and come down again.
+    env.teleport_tool("gripper", start.pos, start.rot, start.gap)
+    motion = Motion(env, "gripper", n_steps=env.cfg.sim.steps_per_skill)
+    open_gap, _, grip_y, safe_y = _grip_geometry(tool, start.rot, scene)
+    _gripper_approach(motion, scene, open_gap, grip_y, safe_y)
+    assert motion.actions == []
 
 
 @pytest.mark.parametrize(("task", "tool"), [("CRS", "knife"), ("CRS", "pusher"), ("CRS", "roller"),
