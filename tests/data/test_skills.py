@@ -35,7 +35,7 @@ from pasta.config.schema import TASK_NAMES
 from pasta.data import skills
 from pasta.data.skills import available_skills, place_tool_for_skill, scripted_actions, skill_tool
 from pasta.data.skills.cut import split_along_x
-from pasta.data.skills.gripper import FINGER_SINK, _grip_geometry, _gripper_approach, gripper_start
+from pasta.data.skills.gripper import FINGER_PRESS, FINGER_SINK, _grip_geometry, _gripper_approach, gripper_start
 from pasta.data.skills.motion import Motion
 from pasta.data.skills.push import SMEAR_LIFT, STRAY_SHARE, push_start
 from pasta.data.skills.scene import Scene, collides, world_half_y
@@ -245,7 +245,13 @@ def test_the_gripper_starts_straddling_a_bulged_piece_where_its_open_fingers_cle
     assert not collides(tool, start, scene.points)
     assert start.pos[2] == pytest.approx(0.4925, abs=2e-3)
     assert start.pos[2] < scene.centre[2] - 0.02
-    too_wide = bulged_piece(0.40, 0.60, bulge=1500)  # wider than the open fingers: above the dough
+    # 0.18 wide, 0.01 more than the open fingers: they start pressed 5 mm into each side, at grip height.
+    a_little_wide = bulged_piece(0.40, 0.58, bulge=1500)
+    pressed = gripper_start(env, "gripper", a_little_wide)
+    assert pressed.pos[1] == pytest.approx(grip_y) and pressed.pos[2] == pytest.approx(0.49, abs=2e-3)
+    assert collides(tool, pressed, a_little_wide.points)
+    assert not collides(tool, pressed, a_little_wide.points, margin=-FINGER_PRESS)
+    too_wide = bulged_piece(0.40, 0.60, bulge=1500)  # 0.03 wider than the open fingers: above the dough
     assert gripper_start(env, "gripper", too_wide).pos[1] > grip_y + 0.05
     # From that start the scripted rearrange grips at once: it does not go up and come down again.
     env.teleport_tool("gripper", start.pos, start.rot, start.gap)

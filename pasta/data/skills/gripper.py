@@ -16,6 +16,8 @@ from pasta.sim.envs.base import DoughEnv, ToolPose
 FINGER_SINK = 0.005  # the gripper fingers' bottom sits this far below the dough's bottom
 GRIP_MARGIN = 0.02  # open fingers keep this much room on each side of the piece
 GRIP_SQUEEZE = 0.7  # a closed grip leaves this fraction of the piece's width between the fingers
+# A gripper may start with its fingers this far into a piece wider than they open (half a cell at grid 48).
+FINGER_PRESS = 0.01
 # The carry speeds up and slows down over this many steps: starting and stopping at once leaves dough
 # behind and throws the piece on (CutRearrange oracle at small: 0.828 -> 0.876, ease 6: 0.876, 8: 0.867).
 REARRANGE_EASE = 4
@@ -61,7 +63,9 @@ def straddle_centre(scene: Scene, axis: np.ndarray) -> np.ndarray:
 
 def gripper_start(env: DoughEnv, tool_name: str, scene: Scene) -> ToolPose:
     """Open fingers at grip height straddling the attended dough: around its centre, else around the middle
-    of its extent along the gap axis (:func:`straddle_centre`); above all dough only where both would touch it.
+    of its extent along the gap axis (:func:`straddle_centre`), else there with the fingers pressed at most
+    ``FINGER_PRESS`` into the dough (a piece wider than the open fingers); above all dough only where all three
+    would touch it.
 
     Every demonstration starts straddling its piece, so a start above the dough is one the policies never saw
     (measured at ``small``: all 100 rearrange demonstrations of CutRearrange's set start at grip height, and a
@@ -71,9 +75,10 @@ def gripper_start(env: DoughEnv, tool_name: str, scene: Scene) -> ToolPose:
     current = env.tool_poses()[tool_name]
     open_gap, _, grip_y, safe_y = _grip_geometry(tool, current.rot, scene)
     axis, _ = _gripper_frame(current.rot)
-    for centre in (scene.centre, straddle_centre(scene, axis)):
+    middle = straddle_centre(scene, axis)
+    for centre, margin in ((scene.centre, 0.0), (middle, 0.0), (middle, -FINGER_PRESS)):
         pose = ToolPose(pos=(centre[0], grip_y, centre[2]), rot=current.rot, gap=open_gap)
-        if not collides(tool, pose, scene.points):
+        if not collides(tool, pose, scene.points, margin=margin):
             return pose
     centre = scene.centre
     return ToolPose(pos=(centre[0], safe_y, centre[2]), rot=current.rot, gap=open_gap)
@@ -91,7 +96,8 @@ def _gripper_approach(m: Motion, scene: Scene, open_gap: float, grip_y: float, s
 
     around = abs(m.pos[1] - grip_y) < 0.03 and (
         (near(centre) and inner >= _width_along(scene.attended, centre, axis))
-        or (near(straddle_centre(scene, axis)) and inner >= float(along.max() - along.min())))
+        or (near(straddle_centre(scene, axis))
+            and (inner >= float(along.max() - along.min()) or m.gap >= open_gap - 1e-9)))
     if around:
         return
     if m.gap < open_gap:
