@@ -174,12 +174,19 @@ def evaluate(task_name: str, profile: str = "smoke", variant: str = "pasta", see
         "task": cfg.task, "profile": profile, "variant": variant, "plan": plan_source,
         "executor": executor_label(cfg, executor),
         "experiment": experiment, "seeds": seeds,
-        "performance_mean": float(performance.mean()), "performance_std": float(performance.std()),
-        "success_mean": float(success.mean()), "success_std": float(success.std()),
+        "performance_mean": float(performance.mean()), "performance_std": seed_std(performance),
+        "success_mean": float(success.mean()), "success_std": seed_std(success),
         "per_seed": per_seed, "wall_s": time.perf_counter() - started,
     }
     progress.summary(f"evaluate {cfg.task} {variant}", evaluation_text(summary), summary["wall_s"])
     return summary
+
+
+def seed_std(values: np.ndarray) -> float:
+    """The sample standard deviation (``ddof=1``) of per-seed scores, as the reports compute it; 0.0 for one seed
+    (the reports leave that cell empty), so the summary stays valid JSON."""
+    values = np.asarray(values, dtype=np.float64)
+    return float(values.std(ddof=1)) if len(values) > 1 else 0.0
 
 
 def evaluation_text(summary: dict) -> str:

@@ -182,3 +182,12 @@ def test_a_bad_worker_count_is_refused_by_name(isolated_store):
 
     with pytest.raises(ValueError, match="got 0"):
         evaluate_flow.run("CutRearrange", "smoke", workers=0)
+
+
+def test_the_summary_std_over_seeds_is_the_sample_std_the_reports_use():
+    from statistics import stdev
+
+    from flows.evaluate import seed_std
+
+    assert seed_std(np.array([0.846, 0.772, 0.818])) == pytest.approx(stdev([0.846, 0.772, 0.818]))
+    assert seed_std(np.array([0.5])) == 0.0
