@@ -89,15 +89,14 @@ def _gripper_approach(m: Motion, scene: Scene, open_gap: float, grip_y: float, s
     centre = scene.centre
     axis, _ = _gripper_frame(m.rot)
     inner = m.gap - 2.0 * m.tool.half_extents[0]
-    along = (scene.attended - centre) @ axis
 
     def near(point: np.ndarray) -> bool:
         return bool(np.linalg.norm((m.pos - point)[[0, 2]]) < 0.02)
 
+    # Around the centre with room for the piece, or where gripper_start straddles it, opened as wide as it puts it.
     around = abs(m.pos[1] - grip_y) < 0.03 and (
         (near(centre) and inner >= _width_along(scene.attended, centre, axis))
-        or (near(straddle_centre(scene, axis))
-            and (inner >= float(along.max() - along.min()) or m.gap >= open_gap - 1e-9)))
+        or (near(straddle_centre(scene, axis)) and m.gap >= open_gap - 1e-9))
     if around:
         return
     if m.gap < open_gap:
