@@ -412,6 +412,7 @@ class PolicyNetConfig(Frozen):
 
 
 DecodedEntityWeights = Literal["volume", "carried", "equal"]
+PolicyActionRange = Literal["unit", "demonstrated"]
 
 
 class EvalConfig(Frozen):
@@ -433,6 +434,11 @@ class EvalConfig(Frozen):
     # "equal", the entities stacked at the decoder's M points each, as the official decoding stacks them,
     # which on CRS's uneven cuts alone puts the goal's own pieces 0.013-0.099 from the goal.
     decoded_entity_weights: DecodedEntityWeights = "volume"
+    # The box a policy's actions are clipped to: "unit", the environment's [-1, 1] (the official executor);
+    # "demonstrated", also the lowest and highest value of each action dimension over the skill's training
+    # demonstrations (pasta.train.action_range; kept in the bundle), so a policy cannot ask for a motion no
+    # demonstration made.
+    policy_action_range: PolicyActionRange = "unit"
 
 
 class TaskConfig(Frozen):

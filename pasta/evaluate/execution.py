@@ -12,7 +12,8 @@ For each plan step ``h`` (skill ``k_h``, attention ``A_h``):
 5. act for ``cfg.sim.steps_per_skill`` steps with the learned policy (closed loop on the frozen points
    resampled to ``cfg.policy.points`` every time it is asked, the tool's points and the stacked subgoals
    resampled once to as many; a policy with ``policy.chunk`` > 1 is asked every ``chunk`` steps and its
-   actions are acted out in between) or the scripted skill (open loop,
+   actions are acted out in between; each action clipped to [-1, 1] and, with ``eval.policy_action_range:
+   demonstrated``, to the range the skill's demonstrations span) or the scripted skill (open loop,
    toward the subgoals; appendix §3.1's real-robot executor);
 6. ``cfg.sim.settle_steps`` zero-action steps, then park the tool at its back pose.
 """
@@ -32,7 +33,7 @@ from pasta.data.skills import place_tool_for_skill, scripted_actions, skill_tool
 from pasta.evaluate.blowups import save_blowup
 from pasta.evaluate.chunk_ensemble import ChunkEnsemble
 from pasta.evaluate.encoding import segment
-from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_action
+from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_action, skill_action_range
 from pasta.evaluate.selection import attended_mask
 from pasta.geometry.distances import chamfer_distance
 from pasta.geometry.entities import resample
@@ -162,13 +163,14 @@ def _run_policy(env: DoughEnv, bundle: TrainedModels, skill: str, tool: str, pla
     if env.cfg.policy.chunk_execution == "ensemble":
         _run_policy_ensembled(env, bundle, skill, tool, plan_step, indices, goal_points, goal_latents, rng)
         return
+    action_range = skill_action_range(bundle, skill, env.cfg.eval.policy_action_range)
     chunk = np.zeros((0, env.action_dim))
     applied = np.zeros(env.action_dim, dtype=np.float32)
     for k in range(env.cfg.sim.steps_per_skill):
         if len(chunk) == 0:  # ask the policy; a chunking policy answers for several steps
             seen = policy_view(env, tool, indices, goal_points, goal_latents, k, rng, applied)
             chunk = policy_action(bundle, skill, seen).reshape(-1, env.action_dim)
-        applied = checked_action(chunk[0], skill, plan_step, k)
+        applied = checked_action(chunk[0], skill, plan_step, k, action_range)
         env.step(applied)
         chunk = chunk[1:]
 
@@ -179,11 +181,12 @@ def _run_policy_ensembled(env: DoughEnv, bundle: TrainedModels, skill: str, tool
     """The policy asked at every step; each step acts the temporal ensemble of the chunks' predictions for it."""
     n_steps = env.cfg.sim.steps_per_skill
     ensemble = ChunkEnsemble(n_steps, env.action_dim, env.cfg.policy.ensemble_decay)
+    action_range = skill_action_range(bundle, skill, env.cfg.eval.policy_action_range)
     applied = np.zeros(env.action_dim, dtype=np.float32)
     for k in range(n_steps):
         seen = policy_view(env, tool, indices, goal_points, goal_latents, k, rng, applied)
         ensemble.add(k, policy_action(bundle, skill, seen).reshape(-1, env.action_dim))
-        applied = checked_action(ensemble.action(k), skill, plan_step, k)
+        applied = checked_action(ensemble.action(k), skill, plan_step, k, action_range)
         env.step(applied)
 
 

@@ -5,7 +5,8 @@
 * ``LatentSetPolicy`` ("shared encoder"): the VAE latents of the observation piece and of the subgoals.
 
 Actions come back unclipped; :func:`checked_action` refuses non-finite ones (naming the step and the
-value) and only then clips to [-1, 1], as the environment would.
+value) and only then clips to [-1, 1], as the environment would, and to the skill's demonstrated range where
+``eval.policy_action_range`` asks for it (:func:`skill_action_range`).
 """
 
 from __future__ import annotations
@@ -18,9 +19,10 @@ import torch
 
 from pasta.models.policy_ablations import LatentSetPolicy, ToolConcatPolicy
 from pasta.models.policy_ensemble import policy_members
+from pasta.train.action_range import ActionRange, bounded
 from pasta.train.bundle import TrainedModels
 
-__all__ = ["NonFiniteActionError", "PolicyInput", "checked_action", "policy_action"]
+__all__ = ["NonFiniteActionError", "PolicyInput", "checked_action", "policy_action", "skill_action_range"]
 
 
 class NonFiniteActionError(RuntimeError):
@@ -74,8 +76,24 @@ def policy_action(bundle: TrainedModels, skill: str, seen: PolicyInput) -> np.nd
     return action.reshape(-1).double().cpu().numpy()
 
 
-def checked_action(action: np.ndarray, skill: str, plan_step: int, env_step: int) -> np.ndarray:
-    """``action`` clipped to [-1, 1] as float32; raises :class:`NonFiniteActionError` if any value is not finite."""
+def skill_action_range(bundle: TrainedModels, skill: str, mode: str) -> ActionRange | None:
+    """The box beyond [-1, 1] that ``eval.policy_action_range`` = ``mode`` holds ``skill``'s policy actions to:
+    None for ``"unit"``, the bundle's demonstrated range for ``"demonstrated"``."""
+    if mode == "unit":
+        return None
+    if mode != "demonstrated":
+        raise ValueError(f"unknown policy action range {mode!r}; choose 'unit' or 'demonstrated'")
+    if bundle.action_range is None:
+        raise ValueError("eval.policy_action_range 'demonstrated' needs a bundle that kept its demonstrations' action "
+                         "range; this one was trained before it was kept: run `pasta train` again (it reuses the "
+                         "trained networks) or set eval.policy_action_range=unit")
+    return bundle.action_range[bundle.skill_index(skill)]
+
+
+def checked_action(action: np.ndarray, skill: str, plan_step: int, env_step: int,
+                   action_range: ActionRange | None = None) -> np.ndarray:
+    """``action`` clipped to [-1, 1] and then to ``action_range`` (when given) as float32; raises
+    :class:`NonFiniteActionError` if any value is not finite."""
     values = np.asarray(action, dtype=np.float64).reshape(-1)
     bad = ~np.isfinite(values)
     if bad.any():
@@ -84,4 +102,5 @@ def checked_action(action: np.ndarray, skill: str, plan_step: int, env_step: int
             f"policy of skill {skill!r} (plan step {plan_step}) gave a non-finite action at environment step "
             f"{env_step}: value {float(values[i])} at index {i} of {values.tolist()}"
         )
-    return np.clip(values, -1.0, 1.0).astype(np.float32)
+    clipped = np.clip(values, -1.0, 1.0).astype(np.float32)
+    return clipped if action_range is None else bounded(clipped, action_range)

@@ -22,6 +22,7 @@ from pasta.models.checkpoint import load_checkpoint, restore_models, save_checkp
 from pasta.models.latent_prior import LatentPrior
 from pasta.models.model_config import ModelConfig
 from pasta.models.variants import build_models, variant_spec
+from pasta.train.action_range import ActionRange
 
 __all__ = ["DEFAULT_FILTER_EPSILON", "TrainedModels", "action_dim_of", "load_trained", "save_trained", "untrained"]
 
@@ -78,6 +79,8 @@ class TrainedModels:
             trained before it was measured.
         input_shapes: per skill, the shape latents ``z`` (``D_z`` floats each) of every input entity of its training
             transitions (:mod:`pasta.plan.input_shapes`); ``None`` for a bundle trained before they were kept.
+        action_range: per skill, the ``(A,)`` lowest and highest actions of its training demonstrations
+            (:mod:`pasta.train.action_range`); ``None`` for a bundle trained before they were kept.
     """
 
     task: str
@@ -91,6 +94,7 @@ class TrainedModels:
     reach: tuple[tuple[float, float, float], ...] | None = None
     vertical_range: tuple[tuple[float, float], ...] | None = None
     input_shapes: tuple[tuple[tuple[float, ...], ...], ...] | None = None
+    action_range: tuple[ActionRange, ...] | None = None
 
     def __post_init__(self) -> None:
         variant_spec(self.variant)
@@ -106,6 +110,11 @@ class TrainedModels:
                 or any(len(z) != self.prior.latent_dim for skill in self.input_shapes for z in skill)):
             raise ValueError(f"input_shapes must hold, per skill of {list(self.skill_names)}, shapes of "
                              f"{self.prior.latent_dim} floats")
+        if self.action_range is not None and (
+                len(self.action_range) != len(self.skill_names)
+                or any(len(bound) != self.action_dim for pair in self.action_range for bound in pair)):
+            raise ValueError(f"action_range must hold a (lowest, highest) pair of {self.action_dim} floats per skill "
+                             f"of {list(self.skill_names)}")
         for key in ("vae", "feasibility", "cost", "policy"):
             if key not in self.models:
                 raise ValueError(f"models lacks {key!r}; has {sorted(self.models)}")
@@ -160,6 +169,8 @@ class TrainedModels:
             "vertical_range": None if self.vertical_range is None else [list(r) for r in self.vertical_range],
             "input_shapes": None if self.input_shapes is None
             else [[list(z) for z in skill] for skill in self.input_shapes],
+            "action_range": None if self.action_range is None
+            else [[list(bound) for bound in pair] for pair in self.action_range],
         }
 
 
@@ -219,5 +230,7 @@ def load_trained(path: str | os.PathLike[str], map_location: str | torch.device 
         else tuple(tuple(float(v) for v in r) for r in meta["vertical_range"]),
         input_shapes=None if meta.get("input_shapes") is None
         else tuple(tuple(tuple(float(v) for v in z) for z in skill) for skill in meta["input_shapes"]),
+        action_range=None if meta.get("action_range") is None
+        else tuple(tuple(tuple(float(v) for v in bound) for bound in pair) for pair in meta["action_range"]),
     )
     return bundle.to(map_location).eval()

@@ -33,7 +33,7 @@ from pasta.data.skills.tracking import scripted_path, tracking_actions
 from pasta.data.storage import atomic_write_bytes
 from pasta.evaluate.execution import park_tool, policy_view
 from pasta.evaluate.oracle import oracle_step_inputs
-from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_action
+from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_action, skill_action_range
 from pasta.geometry.entities import resample
 from pasta.models.variants import variant_spec
 from pasta.sim.engine import SimulationError
@@ -87,6 +87,7 @@ def _run_problem(cfg: TaskConfig, bundle: TrainedModels, config_id: int, generat
         try:
             place_tool_for_skill(env, step.skill, inputs.mask, inputs.subgoal)
             path = scripted_path(env, tool, scripted_actions(env, step.skill, inputs.subgoal, inputs.mask))
+            action_range = skill_action_range(bundle, step.skill, cfg.eval.policy_action_range)
             acting = np.zeros((0, env.action_dim))
             applied = np.zeros(env.action_dim, dtype=np.float32)
             for k in range(n_steps):
@@ -97,7 +98,7 @@ def _run_problem(cfg: TaskConfig, bundle: TrainedModels, config_id: int, generat
                 if len(acting) == 0:
                     acting = expert if rng.random() < expert_share else (
                         policy_action(bundle, step.skill, view).reshape(-1, env.action_dim))
-                applied = checked_action(acting[0], step.skill, h, k)
+                applied = checked_action(acting[0], step.skill, h, k, action_range)
                 env.step(applied)
                 acting = acting[1:]
             env.settle(cfg.sim.settle_steps)

@@ -24,6 +24,7 @@ from pasta.models.model_config import ModelConfig
 from pasta.models.variants import variant_spec
 from pasta.plan.input_shapes import skill_input_shapes
 from pasta.plan.reach import skill_reach, skill_vertical_range
+from pasta.train.action_range import demonstrated_action_ranges
 from pasta.train.bundle import DEFAULT_FILTER_EPSILON
 from pasta.train.datasets import DecodedGoals, TransitionSampler, split_trajectories, vae_clouds
 from pasta.train.demos import Demonstrations, load_demonstrations
@@ -126,5 +127,6 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     vertical = tuple(skill_vertical_range(skill) for skill in transitions)
     shapes = tuple(tuple(map(tuple, skill_input_shapes((latents[o].cpu() for o in pairs.obs),
                                                        cfg.train.latent_dim).tolist())) for pairs in whole_pairs)
+    actions = demonstrated_action_ranges(data.demos, data.heads_train, len(cfg.skills), result.bundle.action_dim)
     return dataclasses.replace(result, bundle=dataclasses.replace(result.bundle, reach=reach, vertical_range=vertical,
-                                                                  input_shapes=shapes))
+                                                                  input_shapes=shapes, action_range=actions))

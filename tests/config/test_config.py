@@ -185,6 +185,15 @@ def test_small_and_smoke_policy_budgets(task):
 
 
 @pytest.mark.parametrize("task", TASK_NAMES)
+def test_only_cutrearranges_small_policies_are_held_to_the_demonstrated_action_range(task):
+    expected = "demonstrated" if task == "CutRearrange" else "unit"  # CRS loses with it (small.yaml, tasks:)
+    assert load(task, "small").eval.policy_action_range == expected
+    assert {load(task, profile).eval.policy_action_range for profile in ("smoke", "paper")} == {"unit"}
+    with pytest.raises(ValueError, match="policy_action_range"):
+        load(task, "small", ["eval.policy_action_range=demos"])
+
+
+@pytest.mark.parametrize("task", TASK_NAMES)
 def test_dagger_is_off_by_default_and_its_settings_are_validated(task):
     small = load(task, "small", ["train.dagger_rounds=3"]).train
     assert (small.dagger_rounds, small.dagger_problems, small.dagger_expert_share, small.dagger_steps,

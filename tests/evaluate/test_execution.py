@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from pathlib import Path
 
@@ -159,6 +160,26 @@ def test_a_chunking_policy_is_asked_once_per_chunk_and_its_actions_are_acted_out
     assert not policy.previous[0].any()  # nothing was applied before the skill's first step
     for call, k in enumerate(range(3, n, 3), start=1):
         np.testing.assert_array_equal(policy.previous[call], taken[k - 1])  # the action applied just before
+
+
+def test_the_demonstrated_range_holds_every_policy_action_the_executor_applies(bundle, monkeypatch):
+    cfg = load("CutRearrange", "smoke", [*FAST, "eval.policy_action_range=demonstrated"])
+    env, plan = cut_plan(cfg, bundle)
+    policy = ScriptedOutputs([env.action_for("knife", np.array([0.8, -0.4, 0.0])).tolist()])
+    low, high = env.action_for("knife", np.array([0.0, -0.2, 0.0])), env.action_for("knife", np.array([0.5, 0.9, 0.0]))
+    demonstrated = tuple(tuple(float(v) for v in bound) for bound in (low, high))
+    ranged = dataclasses.replace(with_policies(bundle, policy), action_range=(demonstrated, demonstrated))
+    taken = []
+    real_step = env.step
+    monkeypatch.setattr(env, "step", lambda action: (taken.append(np.array(action)), real_step(action))[1])
+    execute_plan(cfg, ranged, env, plan, "policy", np.random.default_rng(0))
+    n = cfg.sim.steps_per_skill
+    for action in taken[:n]:
+        np.testing.assert_allclose(action, env.action_for("knife", np.array([0.5, -0.2, 0.0])))
+    assert policy.previous[1] == pytest.approx(taken[0])  # the policy hears the action applied, not the one it asked
+    env, plan = cut_plan(cfg, bundle)
+    with pytest.raises(ValueError, match="needs a bundle that kept its demonstrations' action range"):
+        execute_plan(cfg, with_policies(bundle, policy), env, plan, "policy", np.random.default_rng(0))
 
 
 def test_an_ensembling_executor_asks_every_step_and_acts_the_mean_of_the_chunks_predictions(bundle, monkeypatch):

@@ -55,6 +55,9 @@ def test_train_flow_logs_metrics_figures_and_the_bundle(prefect_server, isolated
     # and the shapes every skill started from (one z per input entity of its training transitions)
     assert len(bundle.input_shapes) == 2 and all(len(skill) > 0 for skill in bundle.input_shapes)
     assert {len(z) for skill in bundle.input_shapes for z in skill} == {bundle.prior.latent_dim}
+    # and the range of every action dimension its demonstrations took (the synthetic knife moves along +x only)
+    (cut_low, cut_high), _ = bundle.action_range
+    assert 0 < cut_low[0] <= cut_high[0] <= 1 and cut_low[1:] == cut_high[1:] == (0.0,) * (bundle.action_dim - 1)
 
     # without the local file, locate() fetches the run's artifact
     (checkpoint_dir("CutRearrange", "smoke", "pasta") / "models.pt").unlink()
