@@ -87,18 +87,21 @@ def _run_problem(cfg: TaskConfig, bundle: TrainedModels, config_id: int, generat
         try:
             place_tool_for_skill(env, step.skill, inputs.mask, inputs.subgoal)
             path = scripted_path(env, tool, scripted_actions(env, step.skill, inputs.subgoal, inputs.mask))
-            action_range = skill_action_range(bundle, step.skill, cfg.eval.policy_action_range)
-            acting = np.zeros((0, env.action_dim))
+            policy_range = skill_action_range(bundle, step.skill, cfg.eval.policy_action_range)
+            acting, acting_range = np.zeros((0, env.action_dim)), None
             applied = np.zeros(env.action_dim, dtype=np.float32)
             for k in range(n_steps):
                 view = policy_view(env, tool, indices, goal_points, inputs.goal_latents, k, rng, applied)
                 expert = tracking_actions(env, path, k, horizon)
                 views.append(view)
                 chunks.append(expert)
-                if len(acting) == 0:
-                    acting = expert if rng.random() < expert_share else (
-                        policy_action(bundle, step.skill, view).reshape(-1, env.action_dim))
-                applied = checked_action(acting[0], step.skill, h, k, action_range)
+                if len(acting) == 0:  # the expert's chunk as it is, or the policy's held as the executor holds it
+                    if rng.random() < expert_share:
+                        acting, acting_range = expert, None
+                    else:
+                        acting = policy_action(bundle, step.skill, view).reshape(-1, env.action_dim)
+                        acting_range = policy_range
+                applied = checked_action(acting[0], step.skill, h, k, acting_range)
                 env.step(applied)
                 acting = acting[1:]
             env.settle(cfg.sim.settle_steps)

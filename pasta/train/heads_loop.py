@@ -22,6 +22,7 @@ progress file (``policy_progress_path``). The heads' final weights are those of 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ from pasta.models.latent_prior import LatentPrior
 from pasta.models.model_config import ModelConfig
 from pasta.models.vae import PointCloudVAE
 from pasta.models.variants import variant_spec
+from pasta.train.action_range import ActionRange
 from pasta.train.bundle import TrainedModels, save_trained, untrained
 from pasta.train.dagger import DaggerSettings, dagger_rounds
 from pasta.train.datasets import PolicySamples, TransitionSampler, pad_sets
@@ -266,7 +268,8 @@ def _fit_abstraction(bundle: TrainedModels, sampler: TransitionSampler, held_out
 def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torch.Tensor,
                 train_sampler: TransitionSampler, held_out: HeldOut, prior: LatentPrior, settings: HeadsSettings,
                 checkpoint_path: str | Path, *, model_config: ModelConfig | None = None,
-                on_epoch: EpochCallback | None = None, device: torch.device | None = None) -> HeadsResult:
+                on_epoch: EpochCallback | None = None, device: torch.device | None = None,
+                action_range: tuple[ActionRange, ...] | None = None) -> HeadsResult:
     """Train the heads of ``variant`` on cached entity ``latents (N, E)``, then its policies; resume from
     ``checkpoint_path`` (heads) and ``policy_progress_path(checkpoint_path)`` (policies).
 
@@ -286,6 +289,8 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
             ``cfg.train.dagger_rounds``, ``on_epoch("dagger", steps, metrics)`` after each evaluation of the
             DAgger rounds (``pasta.train.dagger.dagger_rounds``; they simulate, in this thread).
         device: where to train (default: where ``latents`` are).
+        action_range: the skills' demonstrated action ranges (:mod:`pasta.train.action_range`), kept in the
+            bundle from the start, so DAgger's visits clip to them as the executor does.
 
     Returns:
         The bundle on the CPU; its metrics: the last epoch's, the policies' pooled held-out MSE with the kept
@@ -296,7 +301,8 @@ def train_heads(cfg: TaskConfig, variant: str, vae: PointCloudVAE, latents: torc
     latents = latents.to(device)
     if max(train_sampler.count(k) for k in range(len(cfg.skills))) == 0:
         raise ValueError(f"no training transitions for any skill of {cfg.task}")
-    bundle = untrained(cfg, variant, prior, model_config=model_config, seed=settings.seed)
+    bundle = dataclasses.replace(untrained(cfg, variant, prior, model_config=model_config, seed=settings.seed),
+                                 action_range=action_range)
     bundle.models["vae"].load_state_dict(vae.state_dict())
     bundle.to(device).eval()
     path = Path(checkpoint_path)

@@ -25,7 +25,7 @@ from pasta.models.variants import variant_spec
 from pasta.plan.input_shapes import skill_input_shapes
 from pasta.plan.reach import skill_reach, skill_vertical_range
 from pasta.train.action_range import demonstrated_action_ranges
-from pasta.train.bundle import DEFAULT_FILTER_EPSILON
+from pasta.train.bundle import DEFAULT_FILTER_EPSILON, action_dim_of
 from pasta.train.datasets import DecodedGoals, TransitionSampler, split_trajectories, vae_clouds
 from pasta.train.demos import Demonstrations, load_demonstrations
 from pasta.train.entities import EntityTable, PairChamfer, build_entity_table, decode_latents
@@ -116,9 +116,10 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     train_entities = torch.from_numpy(data.table.of_states(train_states)).to(device)
     prior = LatentPrior.from_centres(latents[train_entities, cfg.train.latent_dim :].cpu(), cfg.train.latent_dim)
     held_out = HeldOut.build(test_sampler, latents)
+    actions = demonstrated_action_ranges(data.demos, data.heads_train, len(cfg.skills), action_dim_of(cfg))
     result = train_heads(cfg, variant, vae, latents, train_sampler, held_out, prior,
                          settings or HeadsSettings.from_config(cfg, variant, seed), progress_path,
-                         model_config=model_config, on_epoch=on_epoch, device=device)
+                         model_config=model_config, on_epoch=on_epoch, device=device, action_range=actions)
     centres = latents[:, cfg.train.latent_dim :].cpu()
     whole_pairs = [train_sampler.whole_skill_pairs(k) for k in range(len(cfg.skills))]
     transitions = [[(centres[o], centres[g]) for o, g in zip(pairs.obs, pairs.goal, strict=True)]
@@ -127,6 +128,5 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     vertical = tuple(skill_vertical_range(skill) for skill in transitions)
     shapes = tuple(tuple(map(tuple, skill_input_shapes((latents[o].cpu() for o in pairs.obs),
                                                        cfg.train.latent_dim).tolist())) for pairs in whole_pairs)
-    actions = demonstrated_action_ranges(data.demos, data.heads_train, len(cfg.skills), result.bundle.action_dim)
     return dataclasses.replace(result, bundle=dataclasses.replace(result.bundle, reach=reach, vertical_range=vertical,
-                                                                  input_shapes=shapes, action_range=actions))
+                                                                  input_shapes=shapes))

@@ -65,6 +65,24 @@ def test_with_the_expert_acting_the_tool_stays_on_its_path_and_runs_repeat(setti
         torch.testing.assert_close(previous[:, 1:], chunks[:, :-1, 0], atol=2e-3, rtol=0)
 
 
+def test_with_the_demonstrated_range_the_policys_actions_are_held_to_it_and_the_experts_are_not(setting):
+    """A range of zeros in every dimension: the policy's actions are applied as zeros, the expert's unchanged."""
+    cfg, bundle = setting
+    held = cfg.model_copy(update={"eval": cfg.eval.model_copy(update={"policy_action_range": "demonstrated"})})
+    with pytest.raises(ValueError, match="needs a bundle that kept its demonstrations' action range"):
+        collect_visits(held, bundle, [0], seed=0, expert_share=0.0)
+    zeros = ((0.0,) * bundle.action_dim, (0.0,) * bundle.action_dim)
+    ranged = dataclasses.replace(bundle, action_range=(zeros, zeros))
+    for samples in collect_visits(held, ranged, [0], seed=0, expert_share=0.0).values():
+        assert not samples.previous_actions.any() and samples.action_chunks.abs().sum() > 0
+    n, action_dim = cfg.sim.steps_per_skill, bundle.action_dim
+    for samples in collect_visits(held, ranged, [1], seed=3, expert_share=1.0).values():
+        chunks = samples.action_chunks.reshape(-1, n, CHUNK, action_dim)
+        previous = samples.previous_actions.reshape(-1, n, action_dim)
+        assert previous.abs().sum() > 0
+        torch.testing.assert_close(previous[:, 1:], chunks[:, :-1, 0], atol=2e-3, rtol=0)
+
+
 def test_a_share_outside_zero_to_one_is_refused(setting):
     cfg, bundle = setting
     with pytest.raises(ValueError, match="expert_share"):
