@@ -285,6 +285,12 @@ class TrainConfig(Frozen):
     # before a cut separates the pieces does not show where the cut goes, so the first steps' labels are
     # unpredictable from it.
     policy_hindsight_ratio: float = Field(default=0.5, ge=0.0, le=1.0)
+    # Share of the feasibility positives whose goal is the demonstration's target instead of a later state of the
+    # same demonstration. The planner plans towards targets (the test goal is one, as is every stage of the
+    # generator's chain), but the official positives pair observed states only (model_spec §2.3) and a scripted
+    # skill stops short of its target: trained for 60 epochs, CRS's networks scored the generator's own chain at
+    # 0.003-0.09 per step (docs/planning.md, "Feasibility that knows the targets"). 0: hindsight goals only.
+    feasibility_target_share: float = Field(default=0.0, ge=0.0, le=1.0)
     # Entity filtering (appendix 1.5) drops every observed entity within the filter's Chamfer of a goal entity.
     # A skill that changes its one entity a little (a spread whose target is 0.0002 in squared Chamfer from its
     # start, 9 of LiftSpread's 20 small spreads) then leaves nothing, and the sample is dropped from the
@@ -331,6 +337,12 @@ class PlanConfig(Frozen):
     # Weight of the set cost in the objective; None: the official code's (10 for CutRearrange, 100 otherwise,
     # model_spec §5.4).
     alpha: float | None = Field(default=None, ge=0)
+    # A step's feasibility counts as at least this in the objective's log (keeps it finite). Below it the step
+    # has no gradient: with networks trained to sharp verdicts most of the planner's random samples start there
+    # and never move (CRS at small with 60 head epochs: the ground truth scored above the chosen plan in 13 of 15
+    # evaluations, docs/planning.md "Feasibility that knows the targets"). The feasibility is a sigmoid, so a tiny
+    # floor keeps the gradient out of infeasible regions. 0.01: the earlier planner's.
+    feasibility_floor: float = Field(default=0.01, gt=0, lt=1)
     # "reach": each skill's outputs are kept within the displacement from its inputs, per axis, that its training
     # transitions span (pasta.plan.reach), the factor falling to exp(-1) at reach_softness beyond it; "none": the
     # appendix.

@@ -101,12 +101,12 @@ class PlanSettings:
     @classmethod
     def from_config(cls, cfg: TaskConfig, *, halving: tuple[float, ...] = DEFAULT_HALVING, seed: int = 0
                     ) -> PlanSettings:
-        """Table 3's lr, iterations, samples and ``cfg.plan``'s cost; ``cfg.plan.alpha``, by default the official
-        code's 10 for CutRearrange and 100 otherwise; with ``cfg.plan.reach_frame`` ``"tool"``, the skills whose
-        tool moves along x and z are guarded in the horizontal plane."""
+        """Table 3's lr, iterations, samples and ``cfg.plan``'s cost and feasibility floor; ``cfg.plan.alpha``, by
+        default the official code's 10 for CutRearrange and 100 otherwise; with ``cfg.plan.reach_frame`` ``"tool"``,
+        the skills whose tool moves along x and z are guarded in the horizontal plane."""
         alpha = cfg.plan.alpha if cfg.plan.alpha is not None else 10.0 if cfg.task == "CutRearrange" else 100.0
         return cls(lr=cfg.plan.lr, iterations=cfg.plan.iterations, samples=cfg.plan.samples,
-                   alpha=alpha, seed=seed, halving=halving,
+                   alpha=alpha, seed=seed, halving=halving, feasibility_floor=cfg.plan.feasibility_floor,
                    cost=cfg.plan.cost, cost_points=cfg.plan.cost_points, guard=cfg.plan.guard,
                    reach_softness=cfg.plan.reach_softness, reach_vertical=cfg.plan.reach_vertical,
                    goal_init_share=cfg.plan.goal_init_share, input_shape_guard=cfg.plan.input_shape_guard,

@@ -171,21 +171,26 @@ class TransitionSampler:
             sample).
         decoded_goals: every table entity's VAE reconstruction and the share of policy samples whose goal cloud
             is built from it (``cfg.train.policy_decoded_goal_share``); ``None``: observed goals only.
+        target_share: share of feasibility positives whose goal is the demonstration's target instead of a later
+            state of it (``cfg.train.feasibility_target_share``; the official 0).
     """
 
     def __init__(self, demos: Demonstrations, table: EntityTable, skills: tuple[SkillConfig, ...],
                  trajectories: np.ndarray, filter_epsilon: float, chamfer: PairChamfer,
                  cloud_points: int | None = None, chunk: int = 1,
                  hindsight_ratio: float = HINDSIGHT_GOAL_RATIO, keep_acted: bool = False,
-                 decoded_goals: DecodedGoals | None = None) -> None:
+                 decoded_goals: DecodedGoals | None = None, target_share: float = 0.0) -> None:
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1, got {chunk}")
         if not 0.0 <= hindsight_ratio <= 1.0:
             raise ValueError(f"hindsight_ratio must lie in [0, 1], got {hindsight_ratio}")
+        if not 0.0 <= target_share <= 1.0:
+            raise ValueError(f"target_share must lie in [0, 1], got {target_share}")
         if decoded_goals is not None and len(decoded_goals.clouds) != len(table):
             raise ValueError(f"decoded_goals holds {len(decoded_goals.clouds)} entity clouds, the table {len(table)}")
         self.decoded_goals = decoded_goals
         self.hindsight_ratio = hindsight_ratio
+        self.target_share = target_share
         self.demos, self.table, self.skills = demos, table, skills
         self.chunk = chunk
         self.cloud_points = cloud_points or demos.points.shape[1]
@@ -235,8 +240,13 @@ class TransitionSampler:
     # -- the three kinds of samples -----------------------------------------------------------------
 
     def feasibility_positives(self, skill: int, rows: np.ndarray, rng: np.random.Generator) -> FeasibilityPositives:
-        """Positives from the transitions ``rows`` (``(n, 2)``) with hindsight goals."""
-        return self._positives(skill, rows, self._hindsight_states(rows, rng))
+        """Positives from the transitions ``rows`` (``(n, 2)``) with hindsight goals, or with a share
+        ``target_share`` of them the demonstration's target."""
+        goals = self._hindsight_states(rows, rng)
+        if self.target_share > 0:
+            aimed = rng.random(len(rows)) < self.target_share
+            goals = np.where(aimed, self.demos.target_state[rows[:, 0]], goals)
+        return self._positives(skill, rows, goals)
 
     def whole_skill_pairs(self, skill: int) -> FeasibilityPositives:
         """Every trajectory of ``skill`` from its first state to its last, filtered as the positives."""

@@ -107,10 +107,11 @@ def heads_stage(cfg: TaskConfig, variant: str, data: TrainingData, vae: torch.nn
     decoded = None
     if cfg.train.policy_decoded_goal_share > 0 and not spec.policy_on_latents:
         decoded = DecodedGoals(decode_latents(vae.eval(), latents), cfg.train.policy_decoded_goal_share)
+    aimed = cfg.train.feasibility_target_share
     train_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_train, epsilon, chamfer, points,
-                                      chunk, hindsight, keep_acted, decoded)
+                                      chunk, hindsight, keep_acted, decoded, target_share=aimed)
     test_sampler = TransitionSampler(data.demos, data.table, cfg.skills, data.heads_heldout, epsilon, chamfer, points,
-                                     chunk, hindsight, keep_acted)
+                                     chunk, hindsight, keep_acted, target_share=aimed)
     train_states = np.concatenate([np.arange(data.demos.first_state[i], data.demos.target_state[i] + 1)
                                    for i in data.heads_train])
     train_entities = torch.from_numpy(data.table.of_states(train_states)).to(device)

@@ -19,6 +19,15 @@ def test_settings_from_config():
     assert (crs_twice.iterations, crs_twice.alpha, crs_twice.halving, crs_twice.seed) == (300, 100.0, (), 3)
 
 
+def test_the_feasibility_floor_comes_from_the_config():
+    """The earlier planner's 0.01 unless the config lowers it; a floor outside (0, 1) is refused by name."""
+    assert PlanSettings.from_config(load("CRS", "paper")).feasibility_floor == 0.01
+    lowered = load("CRS", "paper", ["plan.feasibility_floor=1e-12"])
+    assert PlanSettings.from_config(lowered).feasibility_floor == 1e-12
+    with pytest.raises(ValueError, match="feasibility_floor"):
+        load("CRS", "paper", ["plan.feasibility_floor=0"])
+
+
 def test_untrained_bundle_plans_and_keeps_its_parameters_trainable():
     bundle = untrained(load("CutRearrange", "smoke"), "pasta", PRIOR)
     assert [(s.name, s.n_in, s.n_out) for s in bundle_skills(bundle)] == [("cut", 1, 2), ("rearrange", 1, 1)]

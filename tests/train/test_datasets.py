@@ -147,6 +147,24 @@ def test_the_hindsight_ratio_sets_how_many_policy_goals_are_later_states(cfg, tr
         TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table), hindsight_ratio=1.5)
 
 
+def test_the_target_share_sets_how_many_feasibility_goals_are_the_demonstrations_targets(cfg, training_data):
+    """Share 1: every positive's goal is its demonstration's target; share 0 (the official): a state of the
+    trajectory, never the target (a demonstration ends short of it); a share outside [0, 1] is refused."""
+    demos, table = training_data.demos, training_data.table
+    rows = np.repeat(np.array([[i, t] for i in range(10) if demos.skill_index[i] == 0 for t in (0, 5)]), 4, axis=0)
+    targets = [table.state_entities[demos.target_state[i]].tolist() for i, _ in rows]
+    goals = {}
+    for share in (0.0, 0.5, 1.0):
+        sampler = TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table),
+                                    target_share=share)
+        found = sampler.feasibility_positives(0, rows, np.random.default_rng(3))
+        assert len(found.goal) == len(rows)
+        goals[share] = sum(g.tolist() == t for g, t in zip(found.goal, targets, strict=True))
+    assert goals[0.0] == 0 and goals[1.0] == len(rows) and 0 < goals[0.5] < len(rows)
+    with pytest.raises(ValueError, match="target_share.*1.5"):
+        TransitionSampler(demos, table, cfg.skills, np.arange(10), 0.0, PairChamfer(table), target_share=1.5)
+
+
 def test_decoded_goal_clouds_weigh_every_entity_alike():
     """A decoded goal stacks as many points of each entity as the policy executor stacks a plan's subgoals."""
     clouds = np.zeros((3, 200, 3), np.float32)
