@@ -9,6 +9,8 @@
   are merged afterwards, so they win over scaled ones. Scaled counts are rounded half up and
   never drop below 1. A ``tasks:`` block maps a task name to an override tree for that task alone
   (``tasks: {CRS-Twice: {plan: {receding_horizon: 6}}}``), merged after the profile's own trees.
+  In a profile, ``tools`` and ``skills`` may also be mappings from entry names to fields, which change
+  those entries alone (``tools: {knife: {blade_angle_deg: 40}}``).
 * ``overrides`` are dotted keys, either ``{"sim.n_grid": 40}`` or ``["sim.n_grid=40"]`` (values
   of the string form are parsed with ``yaml.safe_load``). Entries of ``tools`` and ``skills`` are
   selected by name or index (``tools.knife.friction=0.5``). ``scale.<factor>=<value>`` replaces
@@ -94,8 +96,9 @@ def load(
             rest.append((key, value))
 
     _apply_scale(tree, scale)
-    tree = _merge(tree, profile_tree)
-    tree = _merge(tree, per_task.get(task, {}))
+    where = f" in profile {profile!r} ({root / 'profiles' / f'{profile}.yaml'})"
+    tree = _merge_layer(tree, profile_tree, where)
+    tree = _merge_layer(tree, per_task.get(task, {}), where)
     for key, value in rest:
         _override(tree, key, value)
     tree["task"] = task
@@ -231,6 +234,18 @@ def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _merge_layer(tree: dict[str, Any], layer: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """Merge a profile's override tree into a task's. ``tools`` or ``skills`` given as a mapping from entry
+    names to fields change those entries alone (``tools: {knife: {blade_angle_deg: 40}}``); as a list they
+    replace the task's list, as in a task file."""
+    named = {key: layer[key] for key in ("tools", "skills") if isinstance(layer.get(key), Mapping)}
+    tree = _merge(tree, {key: value for key, value in layer.items() if key not in named})
+    for key, entries in named.items():
+        for name, fields in entries.items():
+            _override(tree, f"{key}.{name}", fields, where)
+    return tree
+
+
 # ----------------------------------------------------------------------------------------------
 # schema walking
 
@@ -291,6 +306,12 @@ def _check_keys(
             for i, item in enumerate(value):
                 if isinstance(item, Mapping):
                     _check_keys(item, sub, where, f"{dotted}.{_label(item, i)}")
+        elif kind == "list" and isinstance(value, Mapping):  # entries changed by name (a profile's layer)
+            for name, item in value.items():
+                if not isinstance(item, Mapping):
+                    raise ConfigError(f"{dotted}.{name}{where} must be a mapping of {sub.__name__} fields, "
+                                      f"got {item!r}")
+                _check_keys(item, sub, where, f"{dotted}.{name}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -342,8 +363,8 @@ def _override_scale(scale: dict[str, Any], key: str, value: Any) -> None:
     scale.update(updates)
 
 
-def _override(tree: dict[str, Any], key: str, value: Any) -> None:
-    """Set one dotted key, checking each segment against the schema."""
+def _override(tree: dict[str, Any], key: str, value: Any, where: str = " in overrides") -> None:
+    """Set one dotted key, checking each segment against the schema (``where`` names the source in errors)."""
     path = key.split(".")
     if any(not part for part in path):
         raise ConfigError(f"override key {key!r} is malformed: expected dotted names like 'sim.n_grid'")
@@ -353,7 +374,6 @@ def _override(tree: dict[str, Any], key: str, value: Any) -> None:
             f"'{path[0]}' cannot be overridden; pass it as the {path[0]} argument instead "
             f"(one of {', '.join(choices)})"
         )
-    where = " in overrides"
     node: Any = tree
     model: type[BaseModel] = TaskConfig
     in_list = False
@@ -365,7 +385,7 @@ def _override(tree: dict[str, Any], key: str, value: Any) -> None:
             if index is None:
                 labels = [_label(item, i) for i, item in enumerate(node)]
                 raise ConfigError(
-                    f"override key {key!r}: no entry '{part}' in '{prefix}'; "
+                    f"override key {key!r}{where}: no entry '{part}' in '{prefix}'; "
                     f"valid entries: {', '.join(labels)} (by name or index 0..{len(node) - 1})"
                 )
             if last:

@@ -581,3 +581,22 @@ def test_gap_features_and_the_hindsight_ratio_default_to_the_appendixs_and_are_v
     assert load("CutRearrange", "small", ["train.policy_decoded_goal_share=1"]).train.policy_decoded_goal_share == 1.0
     with pytest.raises(ConfigError, match=r"policy_decoded_goal_share"):
         load("CutRearrange", "small", ["train.policy_decoded_goal_share=-0.1"])
+
+
+def test_a_profile_changes_one_tool_by_name(conf_copy):
+    path = conf_copy / "profiles" / "paper.yaml"
+    _edit(path, lambda d: d.update(tasks={"CRS": {"tools": {"knife": {"blade_angle_deg": 40.0}}}}))
+    crs, cut = load("CRS", "paper"), load("CRS", "paper", ["tools.knife.blade_angle_deg=50"])
+    assert _tool(crs, "knife").blade_angle_deg == 40.0 and _tool(cut, "knife").blade_angle_deg == 50.0
+    assert _tool(crs, "knife").half_extents == (0.025, 0.075, 0.06)  # the rest of the entry kept
+    assert [t.name for t in crs.tools] == ["knife", "pusher", "roller"]
+    assert _tool(load("CutRearrange", "paper"), "knife").blade_angle_deg == 60.0  # other tasks untouched
+    _edit(path, lambda d: d.update(tasks={"CRS": {"tools": {"knif": {"blade_angle_deg": 40.0}}}}))
+    with pytest.raises(ConfigError, match=r"tools\.knif.*paper\.yaml.*valid entries: knife, pusher, roller"):
+        load("CRS", "paper")
+    _edit(path, lambda d: d.update(tasks={"CRS": {"tools": {"knife": {"blade_angel_deg": 40.0}}}}))
+    with pytest.raises(ConfigError, match=r"tasks\.CRS\.tools\.knife\.blade_angel_deg.*blade_angle_deg"):
+        load("CRS", "paper")
+    _edit(path, lambda d: d.update(tasks={"CRS": {"tools": {"knife": 40.0}}}))
+    with pytest.raises(ConfigError, match=r"tasks\.CRS\.tools\.knife.*mapping of ToolConfig"):
+        load("CRS", "paper")
