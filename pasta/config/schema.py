@@ -425,6 +425,7 @@ class PolicyNetConfig(Frozen):
 
 DecodedEntityWeights = Literal["volume", "carried", "equal"]
 PolicyActionRange = Literal["unit", "demonstrated"]
+FinalSubgoals = Literal["planned", "goal"]
 
 
 class EvalConfig(Frozen):
@@ -451,6 +452,11 @@ class EvalConfig(Frozen):
     # demonstrations (pasta.train.action_range; kept in the bundle), so a policy cannot ask for a motion no
     # demonstration made.
     policy_action_range: PolicyActionRange = "unit"
+    # What a learned plan hands a step's new entities that no later step attends: "planned", their decoded
+    # latents (the official executor); "goal", the observed goal piece their planned centre is matched to
+    # (points and latent; pasta.evaluate.goal_subgoals), so the entities the plan finishes aim at the goal itself
+    # rather than at the VAE's decoding of it; a step's other new entities then share the dough those pieces leave.
+    final_subgoals: FinalSubgoals = "planned"
 
 
 class TaskConfig(Frozen):

@@ -3,7 +3,8 @@
 For each plan step ``h`` (skill ``k_h``, attention ``A_h``):
 
 1. decode every latent of ``U^h`` to points (``bundle.vae.decode``); the first ``N_out`` are the new
-   subgoals (the planner puts them first);
+   subgoals (the planner puts them first); with ``eval.final_subgoals: goal`` a new entity that no later step
+   attends is handed its goal piece instead (:mod:`pasta.evaluate.goal_subgoals`);
 2. skip the skill when the current dough already is the decoded ``U^h`` (as many pieces, Chamfer <
    ``SKIP_CHAMFER``);
 3. find the attended dough (:func:`pasta.evaluate.selection.attended_mask`) and freeze its observation
@@ -20,6 +21,7 @@ For each plan step ``h`` (skill ``k_h``, attention ``A_h``):
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -33,6 +35,7 @@ from pasta.data.skills import place_tool_for_skill, scripted_actions, skill_tool
 from pasta.evaluate.blowups import save_blowup
 from pasta.evaluate.chunk_ensemble import ChunkEnsemble
 from pasta.evaluate.encoding import segment
+from pasta.evaluate.goal_subgoals import GoalSubgoal, step_subgoals
 from pasta.evaluate.policy_action import PolicyInput, checked_action, policy_action, skill_action_range
 from pasta.evaluate.selection import attended_mask
 from pasta.geometry.distances import chamfer_distance
@@ -61,7 +64,8 @@ class StepRecord:
     Attributes:
         skill: the skill's name.
         subgoal_points: ``(K_h * M, 3)`` every decoded entity of ``U^h``, stacked (new subgoals first).
-        new_subgoal_points: ``(N_out * M, 3)`` the decoded new subgoals, stacked (the policy's goal).
+        new_subgoal_points: ``(Q, 3)`` the new subgoals the skill was handed, stacked (the policy's goal): the
+            decoded ones (``N_out * M`` points), or goal pieces where ``eval.final_subgoals`` is ``goal``.
         attended: ``(P,)`` bool mask of the observation points the skill acted on (all False when skipped).
         skipped: the dough already matched ``U^h``, so no action was taken.
         observation: the observation after the skill, the settling and the tool reset.
@@ -236,9 +240,15 @@ def run_skill(env: DoughEnv, bundle: TrainedModels | None, skill: str, plan_step
 
 
 def execute_plan(cfg: TaskConfig, bundle: TrainedModels, env: DoughEnv, plan: Plan, executor: str,
-                 rng: np.random.Generator) -> Execution:
-    """Execute ``plan`` from the environment's current (settled) state, the one ``U^0`` was encoded from."""
+                 rng: np.random.Generator, finished: Mapping[tuple[int, int], GoalSubgoal] | None = None
+                 ) -> Execution:
+    """Execute ``plan`` from the environment's current (settled) state, the one ``U^0`` was encoded from.
+
+    ``finished``: goal pieces handed to the new entities no later step attends, keyed ``(h, i)`` (step, index among
+    the step's new entities; :func:`pasta.evaluate.goal_subgoals.goal_subgoals`) in place of their decoded clouds.
+    """
     check_executor(executor)
+    finished = finished or {}
     latent_dim = bundle.vae.config.latent_dim
     records: list[StepRecord] = []
     for h, (skill, attention) in enumerate(zip(plan.skills, plan.attention, strict=True), start=1):
@@ -247,17 +257,20 @@ def execute_plan(cfg: TaskConfig, bundle: TrainedModels, env: DoughEnv, plan: Pl
         n_out = after.shape[0] - (before.shape[0] - len(attention))
         decoded = decode_set(bundle, after)
         everything = decoded.reshape(-1, 3)
-        new_subgoals = decoded[:n_out].reshape(-1, 3)
         points = np.asarray(env.observation().dough_points)
         labels = segment(cfg, points)
         if already_reached(points, labels, everything, after.shape[0]):
-            records.append(StepRecord(skill, everything, new_subgoals, np.zeros(len(points), bool), True,
-                                      env.observation()))
+            records.append(StepRecord(skill, everything, decoded[:n_out].reshape(-1, 3), np.zeros(len(points), bool),
+                                      True, env.observation()))
             continue
         centres = None if h == 1 else before[list(attention), latent_dim:].detach().cpu().numpy()
         mask = attended_mask(points, labels, attention, centres)
+        handed = [finished.get((h, i)) for i in range(n_out)]
+        new_subgoals = step_subgoals(decoded[:n_out], handed, int(mask.sum()), rng)
+        new_latents = torch.stack([after[i] if goal is None else goal.latent.to(after)
+                                   for i, goal in enumerate(handed)])
         target = np.concatenate([new_subgoals, points[~mask]])
-        failure = run_skill(env, bundle, skill, h, mask, target, executor, new_subgoals, after[:n_out], rng)
+        failure = run_skill(env, bundle, skill, h, mask, target, executor, new_subgoals, new_latents, rng)
         if failure is not None:
             return Execution(steps=tuple(records), final=env.observation(), failure=failure)
         records.append(StepRecord(skill, everything, new_subgoals, mask, False, park_tool(env, tool)))

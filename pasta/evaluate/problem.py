@@ -26,6 +26,7 @@ from pasta.config.schema import TaskConfig
 from pasta.data.configurations import EvaluationProblem, oracle_chain
 from pasta.evaluate.encoding import EncodedScene, encode_scene
 from pasta.evaluate.execution import Execution, check_executor, decode_set, execute_plan
+from pasta.evaluate.goal_subgoals import goal_subgoals
 from pasta.evaluate.metrics import planned_goal_distance, shape_distance
 from pasta.evaluate.oracle import check_plan_source, execute_oracle, needs_models
 from pasta.evaluate.plan_diagnostics import PlanDiagnostics, diagnose_learned_plan, diagnostics_row
@@ -171,7 +172,10 @@ def _learned_outcome(cfg: TaskConfig, bundle: TrainedModels, problem: Evaluation
     except NoSkillSequenceError as error:
         execution = Execution(steps=(), final=prepared.settled, failure=f"planning: {error}")
         return _Outcome((), (), time.perf_counter() - started, float("nan"), execution, False)
-    execution = execute_plan(cfg, bundle, prepared.env, the_plan, executor, rng)
+    finished = None
+    if cfg.eval.final_subgoals == "goal":
+        finished = goal_subgoals(the_plan, prepared.goal, prepared.target)
+    execution = execute_plan(cfg, bundle, prepared.env, the_plan, executor, rng, finished)
     masses = None
     if cfg.eval.decoded_entity_weights == "carried":  # the only weighting that reads them (each step decoded)
         masses = plan_masses(the_plan, partial(decode_set, bundle),

@@ -15,6 +15,7 @@ from pasta.config import load
 from pasta.data.configurations import evaluation_problems, tool_clearance
 from pasta.evaluate.blowups import load_blowup, replay_blowup
 from pasta.evaluate.execution import already_reached, execute_plan, executor_label
+from pasta.evaluate.goal_subgoals import goal_subgoals
 from pasta.evaluate.policy_action import NonFiniteActionError, checked_action
 from pasta.evaluate.problem import prepare_problem
 from pasta.models.vae import VAEConfig
@@ -109,6 +110,19 @@ def test_scripted_execution_acts_on_the_piece_and_parks_the_tool(cfg, bundle):
     assert pose.pos[1] >= back.pos[1] - 1e-6
     assert world_sdf(knife, env.particles(), pose.pos, pose.rot, pose.gap).min() >= tool_clearance(cfg) - 1e-6
     np.testing.assert_array_equal(execution.final.dough_points, env.observation().dough_points)
+
+
+def test_a_finished_entity_is_handed_its_goal_piece_instead_of_its_decoding(cfg, bundle):
+    problem = evaluation_problems(cfg)[0]
+    prepared = prepare_problem(cfg, bundle, problem, np.random.default_rng(0))
+    plan = Plan(skills=("cut",), attention=((0,),), latent_sets=(prepared.obs.latents, prepared.goal.latents),
+                feasibilities=(1.0,), cost=0.0, score=0.0, planning_time_s=0.0)
+    finished = goal_subgoals(plan, prepared.goal, prepared.target)
+    assert sorted(finished) == [(1, 0), (1, 1)], "a one-step plan finishes both of the cut's pieces"
+    execution = execute_plan(cfg, bundle, prepared.env, plan, "scripted", np.random.default_rng(0), finished)
+    (step,) = execution.steps
+    assert step.new_subgoal_points.shape == prepared.target.shape, "the goal's points, not 2 x 1000 decoded ones"
+    np.testing.assert_array_equal(np.sort(step.new_subgoal_points, axis=0), np.sort(prepared.target, axis=0))
 
 
 def test_policy_execution_runs_the_policy_for_the_skill_budget(cfg, bundle, monkeypatch):
